@@ -1,0 +1,114 @@
+"""Input checks shared by the whole library.
+
+Every public entry point that takes user tensors calls these, so that bad input raises a
+``ValueError`` (or ``TypeError``) that says what was wrong and what was expected, instead of a
+shape error deep inside a matrix product.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__ = ["as_tensor", "check_finite", "check_Xy", "check_X"]
+
+
+def as_tensor(value, *, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
+    """Convert array-likes to a floating tensor, keeping tensors' dtype and device.
+
+    Args:
+        value: a tensor, numpy array, or nested sequence of numbers.
+        name: the argument's name, used in error messages.
+        dtype: dtype to cast to; by default a floating tensor keeps its dtype, anything else
+            becomes float64.
+        device: device to move to; by default a tensor stays where it is.
+
+    Returns:
+        A floating-point tensor.
+
+    Raises:
+        TypeError: if ``value`` cannot be read as numbers.
+    """
+    if isinstance(value, torch.Tensor):
+        t = value
+    else:
+        try:
+            t = torch.as_tensor(np.asarray(value, dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise TypeError(
+                f"{name} must be a tensor or array of numbers, got {type(value)}"
+            ) from exc
+    if dtype is not None:
+        t = t.to(dtype)
+    elif not t.is_floating_point():
+        t = t.to(torch.float64)
+    if device is not None:
+        t = t.to(device)
+    return t
+
+
+def check_finite(t: torch.Tensor, name: str) -> None:
+    """Raise ``ValueError`` if ``t`` has NaN or infinite entries, saying how many and where."""
+    bad = ~torch.isfinite(t)
+    if bool(bad.any()):
+        n_nan = int(torch.isnan(t).sum())
+        n_inf = int(bad.sum()) - n_nan
+        first = tuple(int(i) for i in torch.nonzero(bad)[0])
+        raise ValueError(
+            f"{name} has {n_nan} NaN and {n_inf} infinite entries (first at index {first}); "
+            "remove or impute them before fitting"
+        )
+
+
+def check_X(X, *, name: str = "X", n_features: int | None = None) -> torch.Tensor:
+    """Check a design matrix of shape ``(n, d)`` and return it as a floating tensor."""
+    X = as_tensor(X, name=name)
+    if X.ndim != 2:
+        raise ValueError(
+            f"{name} must be 2-D with shape (n_samples, n_features), got shape {tuple(X.shape)}"
+        )
+    if X.shape[0] < 1:
+        raise ValueError(f"{name} has no rows; at least one sample is needed")
+    if X.shape[1] < 1:
+        raise ValueError(f"{name} has no columns; at least one feature is needed")
+    if n_features is not None and X.shape[1] != n_features:
+        raise ValueError(f"{name} has {X.shape[1]} features, expected {n_features}")
+    check_finite(X, name)
+    return X
+
+
+def check_Xy(X, y, weights=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Check a regression data set.
+
+    Args:
+        X: inputs, shape ``(n, d)``.
+        y: outputs, shape ``(n,)`` (a trailing singleton dimension ``(n, 1)`` is accepted).
+        weights: optional non-negative per-row weights, shape ``(n,)``.
+
+    Returns:
+        ``(X, y, weights)`` as tensors; ``y`` and ``weights`` on ``X``'s device and dtype.
+
+    Raises:
+        ValueError: on NaN or inf, mismatched lengths, wrong number of dimensions, no rows or
+            negative weights.
+    """
+    X = check_X(X)
+    y = as_tensor(y, name="y", device=X.device)
+    if y.ndim == 2 and y.shape[1] == 1:
+        y = y[:, 0]
+    if y.ndim != 1:
+        raise ValueError(f"y must be 1-D with shape (n_samples,), got shape {tuple(y.shape)}")
+    if y.shape[0] != X.shape[0]:
+        raise ValueError(
+            f"X and y have different numbers of samples: {X.shape[0]} and {y.shape[0]}"
+        )
+    check_finite(y, "y")
+    y = y.to(X.dtype)
+    if weights is not None:
+        weights = as_tensor(weights, name="weights", device=X.device).to(X.dtype)
+        if weights.ndim != 1 or weights.shape[0] != X.shape[0]:
+            raise ValueError(f"weights must have shape ({X.shape[0]},), got {tuple(weights.shape)}")
+        check_finite(weights, "weights")
+        if bool((weights < 0).any()):
+            raise ValueError("weights must be non-negative")
+    return X, y, weights

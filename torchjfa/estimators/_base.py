@@ -1,0 +1,113 @@
+"""The interface shared by every estimator: scikit-learn style, fitted from `Moments`."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from .._validation import check_X, check_Xy
+from ..stats import Moments, as_folds, kfold_moments
+
+__all__ = ["LinearEstimator", "CONSTANT_COLUMN_RTOL"]
+
+# A column whose variance about the mean (about zero without intercept) is below this fraction of
+# its raw second moment is treated as constant: it carries no information and gets coefficient 0.
+CONSTANT_COLUMN_RTOL = 1e-10
+
+
+class LinearEstimator:
+    """Base class of the linear estimators.
+
+    Subclasses store keyword-only hyper-parameters in ``__init__`` and implement `_solve`, which
+    sees the second moments of the informative (non-constant) columns only. Hyper-parameter
+    selection by cross-validation is done on *fold moments*: `fit` splits the data into
+    ``cv`` contiguous folds; `fit_moments` takes either one `Moments` (no CV possible, the
+    estimator must then be given its hyper-parameter) or a sequence of `Moments` used as folds.
+
+    Attributes (after fitting):
+        coef_: shape ``(d,)``, float64.
+        intercept_: 0-d float64 tensor (0 when ``fit_intercept=False``).
+        n_features_in_: d.
+    """
+
+    #: whether the estimator needs CV folds when a hyper-parameter is left to be chosen
+    _uses_folds = False
+
+    def __init__(self, *, fit_intercept: bool = True, cv: int = 5) -> None:
+        self.fit_intercept = fit_intercept
+        self.cv = cv
+
+    # -------------------------------------------------------------- public API
+    def fit(self, X, y, weights=None):
+        """Fit from raw data, shape ``(n, d)`` and ``(n,)``. Returns ``self``."""
+        X, y, weights = check_Xy(X, y, weights)
+        if self._needs_folds():
+            return self.fit_moments(kfold_moments(X, y, min(self.cv, X.shape[0]), weights))
+        return self.fit_moments(Moments.from_data(X, y, weights))
+
+    def fit_moments(self, moments: Moments | Sequence[Moments]):
+        """Fit from sufficient statistics. Returns ``self``.
+
+        Args:
+            moments: a `Moments`, or a sequence of `Moments` of disjoint folds of the data
+                (their sum is the training set; estimators that choose a hyper-parameter by
+                cross-validation use the folds).
+        """
+        total, folds = as_folds(moments)
+        if not float(total.n) > 0:
+            raise ValueError("cannot fit on Moments with no samples (total weight 0)")
+        if folds is None and self._needs_folds():
+            raise ValueError(
+                f"{type(self).__name__} chooses its hyper-parameter by cross-validation and needs "
+                "fold moments: pass a list of Moments (e.g. from torchjfa.kfold_moments), or set "
+                "the hyper-parameter explicitly"
+            )
+        active = self._active_columns(total)
+        if folds is not None:
+            folds = [f.select(active) for f in folds]
+        coef_active = self._solve(total.select(active), folds)
+        coef = torch.zeros(total.n_features, dtype=torch.float64, device=total.xtx.device)
+        coef[active] = coef_active.to(torch.float64)
+        self.coef_ = coef
+        self.n_features_in_ = total.n_features
+        if self.fit_intercept:
+            self.intercept_ = total.mean_y - total.mean_x @ coef
+        else:
+            self.intercept_ = torch.zeros((), dtype=torch.float64, device=coef.device)
+        return self
+
+    def predict(self, X) -> torch.Tensor:
+        """Predictions ``X coef_ + intercept_``, shape ``(n,)``, in ``X``'s dtype."""
+        self._check_fitted()
+        X = check_X(X, n_features=self.n_features_in_)
+        return X @ self.coef_.to(X) + self.intercept_.to(X)
+
+    # -------------------------------------------------------------- for subclasses
+    def _needs_folds(self) -> bool:
+        return False
+
+    def _solve(self, moments: Moments, folds: list[Moments] | None) -> torch.Tensor:
+        """Coefficients of the informative columns, from their moments. Shape ``(d_active,)``."""
+        raise NotImplementedError
+
+    def _centered(self, moments: Moments):
+        """``(Sxx, Sxy, Syy, n)``: second moments about the mean if fitting an intercept."""
+        sxx, sxy, syy = moments.second_moments(center=self.fit_intercept)
+        return sxx, sxy, syy, moments.n
+
+    def _active_columns(self, moments: Moments) -> torch.Tensor:
+        raw = torch.diagonal(moments.xtx)
+        spread = torch.diagonal(moments.second_moments(center=self.fit_intercept)[0])
+        active = spread > CONSTANT_COLUMN_RTOL * raw
+        if not bool(active.any()):
+            raise ValueError("every input column is constant; there is nothing to regress on")
+        return active
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "coef_"):
+            raise RuntimeError(f"{type(self).__name__} is not fitted yet; call fit() first")
+
+    def __repr__(self) -> str:
+        params = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.endswith("_"))
+        return f"{type(self).__name__}({params})"

@@ -1,0 +1,317 @@
+"""Sufficient statistics of linear regression.
+
+`Moments` holds N, sum x, sum y, X^T X, X^T y and y^T y in float64. Every estimator in
+`torchjfa.estimators` and the projection in `torchjfa.physical` needs nothing else, so a log of
+any length is reduced to O(d^2) numbers in one pass: build `Moments` chunk by chunk with
+`update`, add the moments of several files with ``+``, and combine processes with
+`all_reduce`. Use this module whenever the regression matrix would not fit in memory, or when
+the same data is fitted by several estimators.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import torch
+
+from ._validation import as_tensor, check_Xy
+
+__all__ = ["Moments", "kfold_moments"]
+
+_FIELDS = ("n", "sum_x", "sum_y", "xtx", "xty", "yty")
+
+
+class Moments:
+    """Weighted sufficient statistics of ``y ~ X``, accumulated in float64.
+
+    Attributes:
+        n: total weight (the number of rows when unweighted), 0-d tensor.
+        n_rows: number of rows seen (ignores weights), int.
+        sum_x: ``sum_i w_i x_i``, shape ``(d,)``.
+        sum_y: ``sum_i w_i y_i``, 0-d.
+        xtx: ``X^T W X``, shape ``(d, d)``.
+        xty: ``X^T W y``, shape ``(d,)``.
+        yty: ``y^T W y``, 0-d.
+
+    Example:
+        >>> m = Moments.zeros(3)
+        >>> for X, y in chunks:            # doctest: +SKIP
+        ...     m.update(X, y)
+        >>> Ridge(alpha=1.0).fit_moments(m)  # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        n: torch.Tensor,
+        sum_x: torch.Tensor,
+        sum_y: torch.Tensor,
+        xtx: torch.Tensor,
+        xty: torch.Tensor,
+        yty: torch.Tensor,
+        n_rows: int = 0,
+    ) -> None:
+        d = sum_x.shape[-1] if sum_x.ndim == 1 else -1
+        shapes = {"n": (), "sum_x": (d,), "sum_y": (), "xtx": (d, d), "xty": (d,), "yty": ()}
+        values = {"n": n, "sum_x": sum_x, "sum_y": sum_y, "xtx": xtx, "xty": xty, "yty": yty}
+        for key, val in values.items():
+            if not isinstance(val, torch.Tensor):
+                val = torch.as_tensor(val, dtype=torch.float64, device=sum_x.device)
+            if tuple(val.shape) != shapes[key]:
+                raise ValueError(
+                    f"Moments.{key} must have shape {shapes[key]}, got {tuple(val.shape)}"
+                )
+            setattr(self, key, val.to(torch.float64))
+        self.n_rows = int(n_rows)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def zeros(cls, n_features: int, *, device: torch.device | str | None = None) -> Moments:
+        """Empty statistics for ``n_features`` inputs, ready for `update`."""
+        if int(n_features) < 1:
+            raise ValueError(f"n_features must be at least 1, got {n_features}")
+        d = int(n_features)
+        kw = {"dtype": torch.float64, "device": device}
+        return cls(
+            torch.zeros((), **kw),
+            torch.zeros(d, **kw),
+            torch.zeros((), **kw),
+            torch.zeros(d, d, **kw),
+            torch.zeros(d, **kw),
+            torch.zeros((), **kw),
+        )
+
+    @classmethod
+    def from_data(cls, X, y, weights=None) -> Moments:
+        """Statistics of one data set.
+
+        Args:
+            X: inputs, shape ``(n, d)``.
+            y: outputs, shape ``(n,)``.
+            weights: optional non-negative row weights, shape ``(n,)``.
+        """
+        X, y, weights = check_Xy(X, y, weights)
+        return cls.zeros(X.shape[1], device=X.device).update(X, y, weights)
+
+    @classmethod
+    def from_chunks(cls, chunks: Iterable[tuple], n_features: int | None = None) -> Moments:
+        """Accumulate over an iterable of ``(X, y)`` or ``(X, y, weights)`` chunks."""
+        m = None if n_features is None else cls.zeros(n_features)
+        for chunk in chunks:
+            if m is None:
+                m = cls.from_data(*chunk)
+            else:
+                m.update(*chunk)
+        if m is None:
+            raise ValueError("no chunks given; cannot build Moments of an empty data set")
+        return m
+
+    def update(self, X, y, weights=None) -> Moments:
+        """Add a chunk of rows in place and return ``self``.
+
+        Args:
+            X: shape ``(n, d)``; any floating dtype, accumulated in float64.
+            y: shape ``(n,)``.
+            weights: optional, shape ``(n,)``.
+        """
+        X, y, weights = check_Xy(X, y, weights)
+        if X.shape[1] != self.n_features:
+            raise ValueError(f"X has {X.shape[1]} features, these moments have {self.n_features}")
+        X = X.to(device=self.xtx.device, dtype=torch.float64)
+        y = y.to(device=self.xtx.device, dtype=torch.float64)
+        if weights is None:
+            Xw, yw = X, y
+            self.n += X.shape[0]
+        else:
+            w = weights.to(device=self.xtx.device, dtype=torch.float64)
+            Xw, yw = X * w[:, None], y * w
+            self.n += w.sum()
+        self.sum_x += Xw.sum(0)
+        self.sum_y += yw.sum()
+        self.xtx += Xw.T @ X
+        self.xty += Xw.T @ y
+        self.yty += yw @ y
+        self.n_rows += X.shape[0]
+        return self
+
+    # ------------------------------------------------------------------ algebra
+    def __add__(self, other: Moments) -> Moments:
+        if isinstance(other, int) and other == 0:  # lets sum([...]) work
+            return self.copy()
+        if not isinstance(other, Moments):
+            return NotImplemented
+        if other.n_features != self.n_features:
+            raise ValueError(
+                f"cannot add Moments with {self.n_features} and {other.n_features} features"
+            )
+        return Moments(
+            *(getattr(self, k) + getattr(other, k).to(self.xtx.device) for k in _FIELDS),
+            n_rows=self.n_rows + other.n_rows,
+        )
+
+    __radd__ = __add__
+
+    def __sub__(self, other: Moments) -> Moments:
+        """Remove the statistics of ``other`` (a subset of this data), e.g. to leave out a fold."""
+        if not isinstance(other, Moments) or other.n_features != self.n_features:
+            raise ValueError("can only subtract Moments with the same number of features")
+        return Moments(
+            *(getattr(self, k) - getattr(other, k).to(self.xtx.device) for k in _FIELDS),
+            n_rows=self.n_rows - other.n_rows,
+        )
+
+    def copy(self) -> Moments:
+        return Moments(*(getattr(self, k).clone() for k in _FIELDS), n_rows=self.n_rows)
+
+    def select(self, index) -> Moments:
+        """Statistics of a subset of the inputs (``index``: int indices or a boolean mask)."""
+        idx = torch.as_tensor(index, device=self.xtx.device)
+        if idx.dtype == torch.bool:
+            idx = torch.nonzero(idx).flatten()
+        return Moments(
+            self.n.clone(),
+            self.sum_x[idx],
+            self.sum_y.clone(),
+            self.xtx[idx][:, idx],
+            self.xty[idx],
+            self.yty.clone(),
+            n_rows=self.n_rows,
+        )
+
+    def to(self, device) -> Moments:
+        """A copy on ``device`` (the statistics stay float64)."""
+        return Moments(*(getattr(self, k).to(device) for k in _FIELDS), n_rows=self.n_rows)
+
+    def all_reduce(self, group=None) -> Moments:
+        """Sum the statistics over all processes of ``torch.distributed`` in place.
+
+        Does nothing when no process group is initialised, so the same code runs on one
+        process. Every process must call it (it is a collective). Returns ``self``.
+        """
+        import torch.distributed as dist
+
+        if not (dist.is_available() and dist.is_initialized()):
+            return self
+        packed = self._pack()
+        dist.all_reduce(packed, op=dist.ReduceOp.SUM, group=group)
+        self._unpack(packed)
+        return self
+
+    def _pack(self) -> torch.Tensor:
+        return torch.cat(
+            [
+                self.n.reshape(1),
+                self.sum_x,
+                self.sum_y.reshape(1),
+                self.xtx.reshape(-1),
+                self.xty,
+                self.yty.reshape(1),
+                torch.tensor([float(self.n_rows)], dtype=torch.float64, device=self.xtx.device),
+            ]
+        )
+
+    def _unpack(self, packed: torch.Tensor) -> None:
+        d = self.n_features
+        i = 0
+        self.n = packed[i].clone()
+        i += 1  # noqa: E702
+        self.sum_x = packed[i : i + d].clone()
+        i += d  # noqa: E702
+        self.sum_y = packed[i].clone()
+        i += 1  # noqa: E702
+        self.xtx = packed[i : i + d * d].reshape(d, d).clone()
+        i += d * d  # noqa: E702
+        self.xty = packed[i : i + d].clone()
+        i += d  # noqa: E702
+        self.yty = packed[i].clone()
+        i += 1  # noqa: E702
+        self.n_rows = int(round(float(packed[i])))
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def n_features(self) -> int:
+        return self.sum_x.shape[0]
+
+    @property
+    def mean_x(self) -> torch.Tensor:
+        """Weighted mean of the inputs, shape ``(d,)``."""
+        self._check_nonempty()
+        return self.sum_x / self.n
+
+    @property
+    def mean_y(self) -> torch.Tensor:
+        """Weighted mean of the output, 0-d."""
+        self._check_nonempty()
+        return self.sum_y / self.n
+
+    def _check_nonempty(self) -> None:
+        if not float(self.n) > 0:
+            raise ValueError("these Moments hold no samples (total weight 0); add data first")
+
+    def second_moments(self, center: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(Sxx, Sxy, Syy)``, about the mean when ``center`` else about zero.
+
+        Returns:
+            ``Sxx`` of shape ``(d, d)``, ``Sxy`` of shape ``(d,)``, ``Syy`` 0-d; sums, not
+            averages (divide by ``n`` for covariances).
+        """
+        self._check_nonempty()
+        if not center:
+            return self.xtx, self.xty, self.yty
+        mx, my = self.mean_x, self.mean_y
+        sxx = self.xtx - self.n * torch.outer(mx, mx)
+        sxx = 0.5 * (sxx + sxx.T)
+        sxy = self.xty - self.n * mx * my
+        syy = self.yty - self.n * my * my
+        return sxx, sxy, syy
+
+    def rss(self, coef: torch.Tensor, intercept: float | torch.Tensor = 0.0) -> torch.Tensor:
+        """Weighted residual sum of squares ``sum_i w_i (y_i - x_i^T coef - intercept)^2``.
+
+        Computed from the statistics alone, so validation errors of any linear model need no
+        pass over the data.
+        """
+        b = as_tensor(coef, name="coef", dtype=torch.float64, device=self.xtx.device)
+        c = torch.as_tensor(intercept, dtype=torch.float64, device=self.xtx.device)
+        return (
+            self.yty
+            - 2 * b @ self.xty
+            + b @ self.xtx @ b
+            - 2 * c * (self.sum_y - b @ self.sum_x)
+            + c * c * self.n
+        )
+
+    def __repr__(self) -> str:
+        return f"Moments(n_features={self.n_features}, n={float(self.n):g}, n_rows={self.n_rows})"
+
+
+def kfold_moments(X, y, n_folds: int, weights=None) -> list[Moments]:
+    """Moments of ``n_folds`` contiguous folds of one data set (for cross-validation).
+
+    Contiguous, not shuffled: rows of a time series stay with their neighbours, so that
+    validation is not flattered by correlated samples on both sides of a split. Fold ``k``
+    holds rows ``[k n / K, (k + 1) n / K)``.
+
+    Returns:
+        A list of ``n_folds`` `Moments`; their sum is the statistics of the whole data set.
+    """
+    X, y, weights = check_Xy(X, y, weights)
+    n = X.shape[0]
+    if not 2 <= n_folds <= n:
+        raise ValueError(
+            f"n_folds must be between 2 and the number of samples ({n}), got {n_folds}"
+        )
+    bounds = [round(k * n / n_folds) for k in range(n_folds + 1)]
+    return [
+        Moments.from_data(X[a:b], y[a:b], None if weights is None else weights[a:b])
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+    ]
+
+
+def as_folds(moments: Moments | Sequence[Moments]) -> tuple[Moments, list[Moments] | None]:
+    """Split an estimator's ``fit_moments`` argument into (total, folds or None)."""
+    if isinstance(moments, Moments):
+        return moments, None
+    folds = list(moments)
+    if not folds or not all(isinstance(m, Moments) for m in folds):
+        raise TypeError("expected a Moments or a non-empty sequence of Moments (CV folds)")
+    return sum(folds[1:], folds[0].copy()), folds
