@@ -1,5 +1,8 @@
 """Rigid-body models from URDF/MJCF, the batched dynamics regressor and `InverseDynamics`."""
 
+from ._inverse_dynamics import InverseDynamics as InverseDynamics
+from ._model import BodyInertial as BodyInertial
+from ._model import RigidBodyModel as RigidBodyModel
 from ._parameters import FRICTION_KINDS as FRICTION_KINDS
 from ._parameters import INERTIAL_NAMES as INERTIAL_NAMES
 from ._parameters import ParameterLayout as ParameterLayout

@@ -1,0 +1,433 @@
+"""`RigidBodyModel`: a robot read from URDF or MJCF, its parameter layout and batched regressor.
+
+Use this module to turn a robot description and joint logs into regression data: the
+regressor ``Y(q, qd, qdd)`` with ``tau = Y theta``, the streamed chunks of its rows, or directly
+the `Moments` an estimator fits. `InverseDynamics` wraps a model and a theta as an
+``nn.Module``; `torchjfa.dynamics._parameters` holds the layout and inertial conversions.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .._progress import progress_bar
+from .._validation import as_tensor, check_finite
+from ..stats import Moments
+from ._parameters import ParameterLayout, friction_kinds, inertial_from_vector, inertial_vector
+from ._rnea import TreeConstants, regressor_into
+from ._tree import KinematicTree, read_description, tree_from_mjcf, tree_from_urdf
+
+__all__ = ["RigidBodyModel", "BodyInertial"]
+
+_DEFAULT_CHUNK = 1024
+
+
+@dataclass(frozen=True)
+class BodyInertial:
+    """The inertial of the body one joint moves (fixed children lumped in), in its frame.
+
+    Attributes:
+        joint: the joint's name.
+        body: the body's (URDF link's, MJCF body's) name.
+        mass: 0-d tensor, kg.
+        com: ``(3,)`` centre of mass in the body frame, m.
+        inertia: ``(3, 3)`` rotational inertia about the centre of mass, body axes, kg m^2.
+    """
+
+    joint: str
+    body: str
+    mass: torch.Tensor
+    com: torch.Tensor
+    inertia: torch.Tensor
+
+
+class RigidBodyModel:
+    """A fixed-base tree of rigid bodies with revolute and prismatic joints.
+
+    Build it with `from_urdf` or `from_mjcf`. theta is laid out joint by joint in
+    `joint_names` order: the 10 inertial parameters of the body the joint moves
+    ``[m, m cx, m cy, m cz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` (about the body frame origin, in the
+    body frame: the URDF child link frame or the MJCF body frame, with bodies attached by fixed
+    joints lumped in), then the joint's friction terms (see `ParameterLayout`).
+
+    Attributes:
+        joint_names: the actuated joints, in pytorch-kinematics' order (depth first).
+        joint_types: ``"revolute"`` (URDF revolute/continuous, MJCF hinge) or ``"prismatic"``.
+        body_names: the body each joint moves.
+        layout: the `ParameterLayout` of theta.
+        chain: the pytorch-kinematics chain (float32, as pytorch-kinematics builds it).
+        source_path: the description's absolute path, or None when built from a string.
+        source_format: ``"urdf"`` or ``"mjcf"``.
+        source_xml: the description's text.
+    """
+
+    def __init__(
+        self,
+        tree: KinematicTree,
+        chain,
+        *,
+        friction: str | Sequence[str],
+        source_xml: str,
+        source_path: str | None,
+        source_format: str,
+    ) -> None:
+        self._tree = tree
+        self.chain = chain
+        self.layout = ParameterLayout(tree.joint_names, friction_kinds(friction))
+        self.source_xml = source_xml
+        self.source_path = source_path
+        self.source_format = source_format
+        self._constants: dict[tuple[torch.dtype, torch.device], TreeConstants] = {}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_urdf(
+        cls,
+        source: str | os.PathLike,
+        *,
+        friction: str | Sequence[str] = ("viscous",),
+        gravity: Sequence[float] = (0.0, 0.0, -9.81),
+    ) -> RigidBodyModel:
+        """Read a URDF file (or a string of URDF XML).
+
+        Args:
+            source: a path to a ``.urdf`` file, or the XML itself.
+            friction: friction terms per joint, from ``("viscous", "coulomb", "offset")``.
+            gravity: ``(3,)`` gravity in the root link's frame, m/s^2.
+
+        Raises:
+            FileNotFoundError: if the file does not exist.
+            ValueError: on floating/planar joints, unknown joint types or malformed XML.
+        """
+        text, path = read_description(source, "URDF")
+        tree, chain = tree_from_urdf(text, gravity)
+        return cls(
+            tree, chain, friction=friction, source_xml=text, source_path=path, source_format="urdf"
+        )
+
+    @classmethod
+    def from_mjcf(
+        cls,
+        source: str | os.PathLike,
+        *,
+        friction: str | Sequence[str] = ("viscous",),
+        gravity: Sequence[float] | None = None,
+    ) -> RigidBodyModel:
+        """Read an MJCF file (or a string of MJCF XML); MuJoCo compiles it.
+
+        Args:
+            source: a path to an MJCF ``.xml`` file, or the XML itself.
+            friction: friction terms per joint, from ``("viscous", "coulomb", "offset")``.
+            gravity: ``(3,)`` m/s^2; None takes the file's ``<option gravity>`` (MuJoCo's
+                default is ``(0, 0, -9.81)``).
+
+        Raises:
+            FileNotFoundError: if the file does not exist.
+            ValueError: on free or ball joints, bodies with several joints, unnamed joints, or
+                XML that MuJoCo cannot compile.
+        """
+        text, path = read_description(source, "MJCF")
+        tree, chain, _ = tree_from_mjcf(text, path, gravity)
+        return cls(
+            tree, chain, friction=friction, source_xml=text, source_path=path, source_format="mjcf"
+        )
+
+    # ------------------------------------------------------------------ description
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._tree.joint_names
+
+    @property
+    def joint_types(self) -> tuple[str, ...]:
+        return self._tree.joint_types
+
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        return self._tree.body_names
+
+    @property
+    def lumped_bodies(self) -> dict[str, tuple[str, ...]]:
+        """Per joint, the frames attached by fixed joints that are lumped into its body."""
+        return dict(zip(self.joint_names, self._tree.lumped, strict=True))
+
+    @property
+    def parents(self) -> tuple[int, ...]:
+        """Per joint, the index of the joint that moves its parent body (-1: the fixed base)."""
+        return self._tree.parent
+
+    @property
+    def n_dof(self) -> int:
+        return len(self._tree.joint_names)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return self.layout.parameter_names
+
+    @property
+    def n_params(self) -> int:
+        return self.layout.n_params
+
+    @property
+    def friction(self) -> tuple[str, ...]:
+        return self.layout.friction
+
+    @property
+    def gravity(self) -> torch.Tensor:
+        """``(3,)`` float64, m/s^2, in the root frame."""
+        return torch.as_tensor(self._tree.gravity, dtype=torch.float64).clone()
+
+    @property
+    def nominal_theta(self) -> torch.Tensor:
+        """``(n_params,)`` float64: the description's inertials, zero friction."""
+        inertial = torch.as_tensor(self._tree.inertial, dtype=torch.float64)
+        return self.layout.join(inertial)
+
+    def __repr__(self) -> str:
+        where = self.source_path or "<string>"
+        return (
+            f"RigidBodyModel({self.source_format}: {where}, n_dof={self.n_dof}, "
+            f"n_params={self.n_params}, friction={self.friction})"
+        )
+
+    # ------------------------------------------------------------------ regressor
+    def _consts(self, dtype: torch.dtype, device: torch.device) -> TreeConstants:
+        key = (dtype, device)
+        if key not in self._constants:
+            t = self._tree
+            kw = {"dtype": dtype, "device": device}
+            axis = torch.as_tensor(t.axis, **kw)
+            rot = torch.as_tensor(t.rot_fixed, **kw)
+            point = torch.as_tensor(t.axis_point, **kw)
+            ax64 = torch.as_tensor(t.axis, dtype=torch.float64)
+            x, y, z = ax64.unbind(-1)
+            o = torch.zeros_like(x)
+            K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(-1, 3, 3)
+            ancestors = []
+            for i in range(len(t.parent)):
+                chain, k = [], i
+                while k >= 0:
+                    chain.append(k)
+                    k = t.parent[k]
+                ancestors.append(tuple(reversed(chain)))
+            pos_point = t.pos_fixed + np.einsum("nij,nj->ni", t.rot_fixed, t.axis_point)
+            self._constants[key] = TreeConstants(
+                parent=tuple(t.parent),
+                revolute=tuple(jt == "revolute" for jt in t.joint_types),
+                has_point=tuple(bool(np.any(p != 0.0)) for p in t.axis_point),
+                ancestors=tuple(ancestors),
+                rot_fixed=rot,
+                pos_fixed=torch.as_tensor(t.pos_fixed, **kw),
+                axis=axis,
+                axis_point=point,
+                pos_point=torch.as_tensor(pos_point, **kw),
+                skew_axis=K.to(**kw),
+                skew_axis2=(K @ K).to(**kw),
+                gravity=torch.as_tensor(t.gravity, **kw),
+                pairs=(
+                    torch.tensor([j for a in ancestors for j in a], device=device),
+                    torch.tensor([i for i, a in enumerate(ancestors) for _ in a], device=device),
+                ),
+            )
+        return self._constants[key]
+
+    def _check_state(self, q, qd, qdd, tau=None):
+        names = ("q", "qd", "qdd", "tau")
+        vals = [as_tensor(v, name=n) for v, n in zip((q, qd, qdd, tau), names, strict=False)]
+        if tau is None:
+            vals = vals[:3]
+        shape = vals[0].shape
+        if len(shape) == 0 or shape[-1] != self.n_dof:
+            raise ValueError(
+                f"q must have shape (*batch, {self.n_dof}) (one column per joint of "
+                f"{self.joint_names}), got {tuple(shape)}"
+            )
+        for v, n in zip(vals[1:], names[1:], strict=False):
+            if v.shape != shape:
+                raise ValueError(
+                    f"{n} must have the same shape as q {tuple(shape)}, got {tuple(v.shape)}"
+                )
+            if v.device != vals[0].device:
+                raise ValueError(f"{n} is on {v.device}, q on {vals[0].device}; use one device")
+        dtype = vals[0].dtype
+        for v in vals[1:]:
+            dtype = torch.promote_types(dtype, v.dtype)
+        vals = [v.to(dtype) for v in vals]
+        for v, n in zip(vals, names, strict=False):
+            if not v.requires_grad:
+                check_finite(v, n)
+            elif not bool(torch.isfinite(v.detach()).all()):
+                check_finite(v.detach(), n)
+        return vals
+
+    def regressor(self, q, qd, qdd, *, chunk_size: int | None = None) -> torch.Tensor:
+        """The dynamics regressor: ``tau = Y(q, qd, qdd) @ theta``.
+
+        Args:
+            q: ``(*batch, n_dof)`` joint positions, rad (revolute) or m (prismatic).
+            qd: ``(*batch, n_dof)`` joint velocities.
+            qdd: ``(*batch, n_dof)`` joint accelerations.
+            chunk_size: samples computed at a time (memory/speed trade-off); None picks one.
+                Ignored when an input requires grad (one pass, so autograd sees one graph).
+
+        Returns:
+            ``(*batch, n_dof, n_params)`` in the inputs' dtype and device (float64 for
+            non-tensor input); differentiable with respect to q, qd and qdd.
+
+        Raises:
+            ValueError: on wrong shapes, mismatched devices, NaN or infinite entries.
+        """
+        q, qd, qdd = self._check_state(q, qd, qdd)
+        batch = q.shape[:-1]
+        n = self.n_dof
+        q2, qd2, qdd2 = (v.reshape(-1, n) for v in (q, qd, qdd))
+        B = q2.shape[0]
+        c = self._consts(q2.dtype, q2.device)
+        grad = torch.is_grad_enabled() and any(v.requires_grad for v in (q2, qd2, qdd2))
+        if grad:
+            out = q2.new_zeros(B, n, self.n_params)
+            regressor_into(out, q2, qd2, qdd2, c, self.friction)
+            return out.reshape(*batch, n, self.n_params)
+        step = _DEFAULT_CHUNK if chunk_size is None else _check_chunk(chunk_size)
+        out = q2.new_empty(B, n, self.n_params)
+        with torch.no_grad():
+            for s in range(0, B, step):
+                e = min(B, s + step)
+                view = out[s:e]
+                view.zero_()
+                regressor_into(view, q2[s:e], qd2[s:e], qdd2[s:e], c, self.friction)
+        return out.reshape(*batch, n, self.n_params)
+
+    def inverse_dynamics(self, q, qd, qdd, theta) -> torch.Tensor:
+        """``tau = Y(q, qd, qdd) @ theta``, ``(*batch, n_dof)``; theta ``(n_params,)``."""
+        Y = self.regressor(q, qd, qdd)
+        theta = self._check_theta(theta).to(Y)
+        return Y @ theta
+
+    def regressor_chunks(
+        self, q, qd, qdd, tau, *, chunk_size: int = 4096
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        """Stream the stacked regression rows, ``chunk_size`` samples at a time.
+
+        Args:
+            q, qd, qdd, tau: ``(*batch, n_dof)`` (tau in N m or N); the batch is flattened.
+            chunk_size: samples per chunk.
+
+        Yields:
+            ``(Y_rows, tau_rows)``: ``(chunk * n_dof, n_params)`` and ``(chunk * n_dof,)``,
+            rows ordered sample by sample, joint by joint within a sample.
+        """
+        q, qd, qdd, tau = self._check_state(q, qd, qdd, tau)
+        step = _check_chunk(chunk_size)
+        n = self.n_dof
+        q2, qd2, qdd2, tau2 = (v.reshape(-1, n) for v in (q, qd, qdd, tau))
+        for s in range(0, q2.shape[0], step):
+            e = min(q2.shape[0], s + step)
+            Y = self.regressor(q2[s:e], qd2[s:e], qdd2[s:e], chunk_size=step)
+            yield Y.reshape(-1, self.n_params), tau2[s:e].reshape(-1)
+
+    def moments(
+        self, q, qd, qdd, tau, *, chunk_size: int = 4096, progress: bool = False
+    ) -> Moments:
+        """`Moments` of ``tau ~ Y theta`` over all samples, never holding the whole Y.
+
+        Args:
+            q, qd, qdd, tau: ``(*batch, n_dof)``.
+            chunk_size: samples per chunk (memory is O(chunk_size * n_dof * n_params)).
+            progress: show a progress bar.
+
+        Returns:
+            `Moments` with ``n_features = n_params`` and one row per sample and joint.
+        """
+        q, qd, qdd, tau = self._check_state(q, qd, qdd, tau)
+        total = int(np.prod(q.shape[:-1]))
+        if total == 0:
+            raise ValueError("no samples: q has an empty batch")
+        m = Moments.zeros(self.n_params, device=q.device)
+        with progress_bar(total=total, desc="moments", enabled=progress, unit="sample") as bar:
+            for Y, t in self.regressor_chunks(q, qd, qdd, tau, chunk_size=chunk_size):
+                m.update(Y, t)
+                bar.update(Y.shape[0] // self.n_dof)
+        return m
+
+    # ------------------------------------------------------------------ inertials
+    def _check_theta(self, theta) -> torch.Tensor:
+        theta = as_tensor(theta, name="theta")
+        if theta.shape != (self.n_params,):
+            raise ValueError(
+                f"theta must have shape ({self.n_params},) for this model, got {tuple(theta.shape)}"
+            )
+        return theta
+
+    def inertials(self, theta=None) -> tuple[BodyInertial, ...]:
+        """Mass, centre of mass and inertia at the centre of mass of each joint's body.
+
+        Args:
+            theta: ``(n_params,)``; default `nominal_theta`.
+
+        Raises:
+            ValueError: if a body's mass is not positive (its centre of mass is undefined).
+        """
+        theta = self.nominal_theta if theta is None else self._check_theta(theta)
+        inertial, _ = self.layout.split(theta)
+        out = []
+        for k, (joint, body) in enumerate(zip(self.joint_names, self.body_names, strict=True)):
+            if not bool(inertial[k, 0] > 0):
+                raise ValueError(
+                    f"the body {body!r} moved by joint {joint!r} has mass "
+                    f"{float(inertial[k, 0])}; a positive mass is needed to define its centre of "
+                    "mass"
+                )
+            mass, com, inertia = inertial_from_vector(inertial[k])
+            out.append(BodyInertial(joint, body, mass, com, inertia))
+        return tuple(out)
+
+    def theta_from_inertials(
+        self, inertials: Sequence[BodyInertial], friction=None
+    ) -> torch.Tensor:
+        """Inverse of `inertials`: theta ``(n_params,)`` (float64) with the given friction.
+
+        Args:
+            inertials: one `BodyInertial` per joint, in `joint_names` order (or matched by
+                their ``joint`` names).
+            friction: ``(n_dof, n_friction)`` friction terms; default zeros.
+        """
+        by_name = {b.joint: b for b in inertials}
+        missing = [j for j in self.joint_names if j not in by_name]
+        if missing or len(inertials) != self.n_dof:
+            raise ValueError(
+                f"need one BodyInertial per joint of {self.joint_names}; missing {missing}"
+            )
+        rows = []
+        for j in self.joint_names:
+            b = by_name[j]
+            mass = as_tensor(b.mass, name="mass", dtype=torch.float64)
+            com = as_tensor(b.com, name="com", dtype=torch.float64)
+            inertia = as_tensor(b.inertia, name="inertia", dtype=torch.float64)
+            if mass.shape != () or com.shape != (3,) or inertia.shape != (3, 3):
+                raise ValueError(f"BodyInertial of {j!r}: need mass (), com (3,), inertia (3, 3)")
+            rows.append(inertial_vector(mass, com, inertia))
+        fr = None if friction is None else as_tensor(friction, name="friction", dtype=torch.float64)
+        return self.layout.join(torch.stack(rows), fr)
+
+    def write_urdf(self, theta, path: str | os.PathLike) -> None:
+        """Write the description with theta's inertials (URDF models); see `_writeback`."""
+        from ._writeback import write_urdf
+
+        write_urdf(self, self._check_theta(theta), path)
+
+    def write_mjcf(self, theta, path: str | os.PathLike) -> None:
+        """Write the description with theta's inertials (MJCF models); see `_writeback`."""
+        from ._writeback import write_mjcf
+
+        write_mjcf(self, self._check_theta(theta), path)
+
+
+def _check_chunk(chunk_size) -> int:
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive int, got {chunk_size!r}")
+    return chunk_size

@@ -1,0 +1,482 @@
+"""Reading a robot description (URDF or MJCF) into the kinematic tree the regressor runs on.
+
+The tree structure (frames, their parents, joint names, types and order) comes from
+pytorch-kinematics (`pk.build_chain_from_urdf` / `pk.build_chain_from_mjcf`). The numbers are read
+again in float64 from the same description, because pytorch-kinematics stores its offsets and
+axes in float32 (about 1e-7 relative), which is too coarse to agree with MuJoCo to 1e-9:
+
+* URDF: joint ``<origin xyz rpy>`` and ``<axis>``, and each link's ``<inertial>`` (mass,
+  ``<origin xyz rpy>``, the 6 inertia entries about the centre of mass in the inertial frame).
+* MJCF: MuJoCo's compiled ``MjModel`` (``body_pos``/``body_quat``, ``jnt_pos``/``jnt_axis``,
+  ``body_mass``/``body_ipos``/``body_iquat``/``body_inertia``), the real MJCF parser.
+
+pytorch-kinematics' own forward kinematics is not used: for MJCF joints with a non-zero ``pos``
+it rotates the body about the joint position without shifting back, which misplaces the body
+(by 2 cm on ``branched_tree``'s left arm); here the body frame is MuJoCo's and the joint axis
+passes through ``pos``. A URDF joint without ``<axis>`` gets the URDF default ``(1, 0, 0)``
+(pytorch-kinematics would use ``(0, 0, 1)``).
+
+Frames attached by fixed joints (URDF ``fixed``, MJCF bodies without joints) are lumped into
+the nearest ancestor moved by a joint; frames fixed to the root are dropped (they never move).
+Use `RigidBodyModel` rather than this module; it is the public face of the tree.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["KinematicTree", "tree_from_urdf", "tree_from_mjcf", "read_description"]
+
+_URDF_JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
+_URDF_FLOATING = ("floating", "planar")
+
+
+@dataclass
+class KinematicTree:
+    """The moving bodies of a robot, one per joint, in pytorch-kinematics' joint order.
+
+    All arrays are float64 numpy; ``n`` is the number of joints.
+
+    Attributes:
+        joint_names: ``n`` names.
+        joint_types: ``n`` of ``"revolute"`` or ``"prismatic"``.
+        body_names: the frame (URDF link, MJCF body) each joint moves.
+        lumped: per joint, names of the frames attached by fixed joints lumped into its body.
+        parent: per joint, index of the joint moving its parent body, or -1 (the root).
+        rot_fixed: ``(n, 3, 3)`` rotation of the joint frame (before motion) in the parent body.
+        pos_fixed: ``(n, 3)`` its position in the parent body, m.
+        axis: ``(n, 3)`` unit joint axis in the body frame.
+        axis_point: ``(n, 3)`` a point on the axis in the body frame (MJCF ``joint pos``), m.
+        inertial: ``(n, 10)`` the lumped inertial parameters of each body (Pinocchio order).
+        gravity: ``(3,)`` m/s^2 in the root frame.
+        fixed_inertial: per joint, ``{frame name: (10,) inertial in its own frame}`` of the lumped
+            frames, for writing back.
+    """
+
+    joint_names: tuple[str, ...]
+    joint_types: tuple[str, ...]
+    body_names: tuple[str, ...]
+    lumped: tuple[tuple[str, ...], ...]
+    parent: tuple[int, ...]
+    rot_fixed: np.ndarray
+    pos_fixed: np.ndarray
+    axis: np.ndarray
+    axis_point: np.ndarray
+    inertial: np.ndarray
+    gravity: np.ndarray
+    fixed_inertial: list[dict[str, np.ndarray]] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------- small maths
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF roll-pitch-yaw (fixed axes X, Y, Z) -> rotation ``Rz(y) Ry(p) Rx(r)``."""
+    r, p, y = (float(v) for v in rpy)
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def quat_matrix(quat) -> np.ndarray:
+    """Unit quaternion ``(w, x, y, z)`` (MuJoCo's order) -> rotation matrix."""
+    w, x, y, z = (float(v) for v in np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat))
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def inertial_np(mass: float, com, inertia_com: np.ndarray) -> np.ndarray:
+    """``(10,)`` inertial vector about the frame origin from mass, centre of mass, I_c."""
+    c = np.asarray(com, dtype=np.float64)
+    inertia = inertia_com + mass * (c @ c * np.eye(3) - np.outer(c, c))
+    six = [inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2], inertia[1, 2], inertia[2, 2]]
+    return np.array([mass, *(mass * c), *six])
+
+
+def transform_inertial_np(pi: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Re-express ``pi`` (10,) of a frame F in a frame G where F sits at ``(rot, pos)`` in G.
+
+    ``I_G = R I_F R^T - S(p) S(R h) - S(R h) S(p) - m S(p)^2`` (no division by the mass, so
+    massless frames pass through).
+    """
+    m, h = pi[0], pi[1:4]
+    i6 = pi[4:10]
+    inertia = np.array([[i6[0], i6[1], i6[3]], [i6[1], i6[2], i6[4]], [i6[3], i6[4], i6[5]]])
+    rh = rot @ h
+    sp, srh = _skew(pos), _skew(rh)
+    new = rot @ inertia @ rot.T - sp @ srh - srh @ sp - m * sp @ sp
+    h_new = m * pos + rh
+    six = [new[0, 0], new[0, 1], new[1, 1], new[0, 2], new[1, 2], new[2, 2]]
+    return np.array([m, *h_new, *six])
+
+
+# ----------------------------------------------------------------------------- reading files
+def read_description(source: str | os.PathLike, kind: str) -> tuple[str, str | None]:
+    """Return ``(xml text, path or None)`` for a file path or an XML string.
+
+    Raises:
+        FileNotFoundError: if ``source`` looks like a path and no such file exists.
+        TypeError: if ``source`` is neither a string nor a path.
+    """
+    if isinstance(source, os.PathLike):
+        source = os.fspath(source)
+    if not isinstance(source, str):
+        raise TypeError(f"the {kind} must be a file path or an XML string, got {type(source)}")
+    if source.lstrip().startswith("<"):
+        return source, None
+    if not os.path.isfile(source):
+        raise FileNotFoundError(f"no {kind} file at {source!r}")
+    with open(source, encoding="utf-8") as fh:
+        return fh.read(), os.path.abspath(source)
+
+
+@dataclass
+class _Frame:
+    """One frame of the description: a URDF link or an MJCF body."""
+
+    name: str
+    parent: int
+    rot: np.ndarray  # joint frame (before motion) in the parent frame
+    pos: np.ndarray
+    joint: str | None = None  # None: fixed to its parent
+    joint_type: str = "fixed"
+    axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    axis_point: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inertial: np.ndarray = field(default_factory=lambda: np.zeros(10))
+
+
+def _floats(text: str | None, n: int, default: tuple[float, ...], what: str) -> np.ndarray:
+    if text is None:
+        return np.array(default, dtype=np.float64)
+    try:
+        vals = [float(v) for v in text.split()]
+    except ValueError as exc:
+        raise ValueError(f"cannot read {n} numbers from {what}={text!r}") from exc
+    if len(vals) != n:
+        raise ValueError(f"{what} needs {n} numbers, got {text!r}")
+    return np.array(vals, dtype=np.float64)
+
+
+def _origin(elem: ET.Element | None, what: str) -> tuple[np.ndarray, np.ndarray]:
+    if elem is None:
+        return np.eye(3), np.zeros(3)
+    xyz = _floats(elem.get("xyz"), 3, (0.0, 0.0, 0.0), f"{what} origin xyz")
+    rpy = _floats(elem.get("rpy"), 3, (0.0, 0.0, 0.0), f"{what} origin rpy")
+    return rpy_matrix(rpy), xyz
+
+
+def _urdf_inertial(link: ET.Element) -> np.ndarray:
+    name = link.get("name")
+    inertial = link.find("inertial")
+    if inertial is None:
+        return np.zeros(10)
+    rot, com = _origin(inertial.find("origin"), f"link {name!r} inertial")
+    mass_el = inertial.find("mass")
+    mass = 0.0 if mass_el is None else float(mass_el.get("value", "0"))
+    if mass < 0:
+        raise ValueError(f"link {name!r} has negative mass {mass}")
+    ie = inertial.find("inertia")
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    v = {k: 0.0 if ie is None else float(ie.get(k, "0")) for k in keys}
+    inertia = np.array(
+        [
+            [v["ixx"], v["ixy"], v["ixz"]],
+            [v["ixy"], v["iyy"], v["iyz"]],
+            [v["ixz"], v["iyz"], v["izz"]],
+        ]
+    )
+    return inertial_np(mass, com, rot @ inertia @ rot.T)
+
+
+def _pk_children(frame) -> list:
+    return list(frame.children)
+
+
+def tree_from_urdf(text: str, gravity) -> tuple[KinematicTree, object]:
+    """Parse URDF text into a `KinematicTree` and the pytorch-kinematics chain."""
+    import pytorch_kinematics as pk
+
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise ValueError(f"the URDF is not valid XML: {exc}") from exc
+    if root.tag != "robot":
+        raise ValueError(f"a URDF's root element must be <robot>, got <{root.tag}>")
+    links = {link.get("name"): link for link in root.findall("link")}
+    joints = {}
+    for j in root.findall("joint"):
+        name, jtype = j.get("name"), j.get("type")
+        if jtype in _URDF_FLOATING:
+            raise ValueError(
+                f"joint {name!r} is {jtype!r}: floating and planar bases are not supported; "
+                "use a fixed-base description (the root link is then fixed to the world)"
+            )
+        if jtype not in (*_URDF_JOINT_TYPES, "fixed"):
+            raise ValueError(
+                f"joint {name!r} has unknown type {jtype!r}; supported: revolute, continuous, "
+                "prismatic, fixed"
+            )
+        joints[name] = j
+    if not joints:
+        raise ValueError("the URDF has no joints; a model needs at least one moving joint")
+    chain = pk.build_chain_from_urdf(text)
+
+    frames: list[_Frame] = []
+
+    def visit(pk_frame, parent: int) -> None:
+        link_name = pk_frame.link.name
+        if link_name not in links:
+            raise ValueError(f"link {link_name!r} is used by a joint but not defined")
+        if parent < 0:
+            rec = _Frame(link_name, -1, np.eye(3), np.zeros(3))
+        else:
+            jname = pk_frame.joint.name
+            j = joints[jname]
+            rot, pos = _origin(j.find("origin"), f"joint {jname!r}")
+            rec = _Frame(link_name, parent, rot, pos)
+            if j.get("type") != "fixed":
+                axis_el = j.find("axis")
+                axis = _floats(
+                    None if axis_el is None else axis_el.get("xyz"),
+                    3,
+                    (1.0, 0.0, 0.0),
+                    f"joint {jname!r} axis",
+                )
+                norm = float(np.linalg.norm(axis))
+                if norm == 0.0:
+                    raise ValueError(f"joint {jname!r} has a zero axis")
+                rec.joint, rec.joint_type, rec.axis = (
+                    jname,
+                    _URDF_JOINT_TYPES[j.get("type")],
+                    axis / norm,
+                )
+        rec.inertial = _urdf_inertial(links[link_name])
+        frames.append(rec)
+        me = len(frames) - 1
+        for child in _pk_children(pk_frame):
+            visit(child, me)
+
+    visit(chain._root, -1)
+    return _lump(frames, chain, gravity), chain
+
+
+def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree, object, object]:
+    """Parse MJCF (text, and its path for relative assets) into a tree, the pk chain and the
+    compiled ``MjModel``."""
+    import mujoco
+
+    try:
+        model = (
+            mujoco.MjModel.from_xml_path(path)
+            if path is not None
+            else mujoco.MjModel.from_xml_string(text)
+        )
+    except ValueError as exc:
+        raise ValueError(f"MuJoCo cannot compile this MJCF: {exc}") from exc
+    for j in range(model.njnt):
+        jt = int(model.jnt_type[j])
+        if jt in (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)):
+            kind = "free" if jt == int(mujoco.mjtJoint.mjJNT_FREE) else "ball"
+            raise ValueError(
+                f"joint {model.joint(j).name!r} is a {kind} joint: floating bases and ball joints "
+                "are not supported; use hinge and slide joints on a fixed base"
+            )
+        if not model.joint(j).name:
+            raise ValueError(f"joint {j} has no name; every joint needs a unique name")
+    for b in range(1, model.nbody):
+        if model.body_jntnum[b] > 1:
+            raise ValueError(
+                f"body {model.body(b).name or b!r} has {model.body_jntnum[b]} joints; "
+                "one joint per body is supported (split it into nested bodies, one joint each)"
+            )
+    if model.njnt == 0:
+        raise ValueError("the MJCF has no joints; a model needs at least one moving joint")
+    if gravity is None:
+        gravity = np.array(model.opt.gravity, dtype=np.float64)
+    chain = _pk_chain_from_mjcf(text, model)
+
+    frames: list[_Frame] = []
+
+    def visit(pk_frame, body: int, parent: int) -> None:
+        if body > 0:
+            rec = _Frame(
+                model.body(body).name,
+                parent,
+                quat_matrix(model.body_quat[body]),
+                np.array(model.body_pos[body], dtype=np.float64),
+            )
+        else:
+            rec = _Frame(model.body(0).name, -1, np.eye(3), np.zeros(3))
+        if pk_frame.link.name != rec.name:
+            raise ValueError(
+                f"pytorch-kinematics and MuJoCo disagree on the tree at body {rec.name!r}"
+            )
+        if body > 0 and model.body_jntnum[body] == 1:
+            j = int(model.body_jntadr[body])
+            rec.joint = model.joint(j).name
+            rec.joint_type = (
+                "revolute"
+                if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+                else "prismatic"
+            )
+            rec.axis = np.array(model.jnt_axis[j], dtype=np.float64)
+            rec.axis_point = np.array(model.jnt_pos[j], dtype=np.float64)
+            if pk_frame.joint.name != rec.joint:
+                raise ValueError(f"pytorch-kinematics and MuJoCo disagree on joint {rec.joint!r}")
+        inertia_c = (
+            quat_matrix(model.body_iquat[body])
+            @ np.diag(model.body_inertia[body])
+            @ quat_matrix(model.body_iquat[body]).T
+        )
+        rec.inertial = inertial_np(float(model.body_mass[body]), model.body_ipos[body], inertia_c)
+        frames.append(rec)
+        me = len(frames) - 1
+        kids = [c for c in range(body + 1, model.nbody) if model.body_parentid[c] == body]
+        pk_kids = _pk_children(pk_frame)[: len(kids)]  # pk lists child bodies first, then sites
+        for child_frame, child in zip(pk_kids, kids, strict=True):
+            visit(child_frame, child, me)
+
+    visit(chain._root, 0, -1)
+    return _lump(frames, chain, gravity), chain, model
+
+
+def _pk_chain_from_mjcf(text: str, model):
+    """pytorch-kinematics' chain of an MJCF.
+
+    ``pk.build_chain_from_mjcf`` is used when it works. pytorch-kinematics 0.10 looks joint
+    types up with MuJoCo enum keys, which recent MuJoCo versions (4.x) no longer match with the
+    integers ``MjModel`` returns (a KeyError), and it recompiles from a string, which loses the
+    file's directory; in those cases the same chain is built here from the compiled model with
+    pk's own ``Frame``/``Link``/``Joint``/``Chain`` classes, as pk's builder does.
+    """
+    import mujoco
+    import pytorch_kinematics as pk
+    import pytorch_kinematics.transforms as tf
+
+    try:
+        return pk.build_chain_from_mjcf(text)
+    except (KeyError, ValueError):
+        pass
+    types = {
+        int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
+        int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic",
+    }
+
+    def frame_of(b: int):
+        body = model.body(b)
+        link = pk.frame.Link(body.name, offset=tf.Transform3d(rot=body.quat, pos=body.pos))
+        if model.body_jntnum[b] == 1:
+            j = model.joint(int(model.body_jntadr[b]))
+            joint = pk.frame.Joint(
+                j.name,
+                offset=tf.Transform3d(pos=j.pos),
+                axis=j.axis,
+                joint_type=types[int(j.type[0])],
+                limits=(j.range[0], j.range[1]),
+            )
+        else:
+            joint = pk.frame.Joint(body.name + "_fixed_joint")
+        fr = pk.frame.Frame(name=body.name, link=link, joint=joint)
+        kids = [c for c in range(b + 1, model.nbody) if model.body_parentid[c] == b]
+        fr.children = [frame_of(c) for c in kids]
+        for s in range(model.nsite):
+            if model.site_bodyid[s] == b:
+                site = model.site(s)
+                fr.children.append(
+                    pk.frame.Frame(
+                        name=site.name,
+                        link=pk.frame.Link(
+                            site.name, offset=tf.Transform3d(rot=site.quat, pos=site.pos)
+                        ),
+                    )
+                )
+        return fr
+
+    root = model.body(0)
+    root_frame = pk.frame.Frame(
+        root.name,
+        link=pk.frame.Link(root.name, offset=tf.Transform3d(rot=root.quat, pos=root.pos)),
+        joint=pk.frame.Joint(),
+    )
+    root_frame.children = frame_of(0).children
+    return pk.chain.Chain(root_frame)
+
+
+# ----------------------------------------------------------------------------- lumping
+def _lump(frames: list[_Frame], chain, gravity) -> KinematicTree:
+    """Lump fixed frames into their moving ancestor and order the joints as pk does."""
+    n_frames = len(frames)
+    owner = [-1] * n_frames  # frame index of the moving frame that carries frame f
+    rot_in_owner = [np.eye(3)] * n_frames  # pose of frame f in its owner's frame
+    pos_in_owner = [np.zeros(3)] * n_frames
+    for f, rec in enumerate(frames):  # parents come before children
+        if rec.joint is not None:
+            owner[f] = f
+            continue
+        if rec.parent < 0:
+            continue
+        p = rec.parent
+        owner[f] = owner[p]
+        rot_in_owner[f] = rot_in_owner[p] @ rec.rot
+        pos_in_owner[f] = pos_in_owner[p] + rot_in_owner[p] @ rec.pos
+
+    moving = [f for f, rec in enumerate(frames) if rec.joint is not None]
+    index = {f: k for k, f in enumerate(moving)}
+    names = tuple(frames[f].joint for f in moving)
+    pk_names = tuple(chain.get_joint_parameter_names())
+    if names != pk_names:
+        raise ValueError(f"joint order {names} differs from pytorch-kinematics' {pk_names}")
+    n = len(moving)
+    inertial = np.zeros((n, 10))
+    lumped: list[list[str]] = [[] for _ in range(n)]
+    fixed_inertial: list[dict[str, np.ndarray]] = [{} for _ in range(n)]
+    for f, rec in enumerate(frames):
+        if owner[f] < 0:
+            continue
+        k = index[owner[f]]
+        inertial[k] += transform_inertial_np(rec.inertial, rot_in_owner[f], pos_in_owner[f])
+        if owner[f] != f:
+            lumped[k].append(rec.name)
+            fixed_inertial[k][rec.name] = rec.inertial.copy()
+
+    parent, rot_fixed, pos_fixed = [], np.zeros((n, 3, 3)), np.zeros((n, 3))
+    for k, f in enumerate(moving):
+        p = frames[f].parent
+        parent.append(index[owner[p]] if owner[p] >= 0 else -1)
+        # pose of the joint frame in the owner of the parent: owner -> parent -> joint frame
+        rot_fixed[k] = rot_in_owner[p] @ frames[f].rot
+        pos_fixed[k] = pos_in_owner[p] + rot_in_owner[p] @ frames[f].pos
+
+    g = np.asarray(gravity if gravity is not None else (0.0, 0.0, -9.81), dtype=np.float64)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise ValueError(f"gravity must be 3 finite numbers, got {gravity}")
+    return KinematicTree(
+        joint_names=names,
+        joint_types=tuple(frames[f].joint_type for f in moving),
+        body_names=tuple(frames[f].name for f in moving),
+        lumped=tuple(tuple(x) for x in lumped),
+        parent=tuple(parent),
+        rot_fixed=rot_fixed,
+        pos_fixed=pos_fixed,
+        axis=np.stack([frames[f].axis for f in moving]),
+        axis_point=np.stack([frames[f].axis_point for f in moving]),
+        inertial=inertial,
+        gravity=g,
+        fixed_inertial=fixed_inertial,
+    )

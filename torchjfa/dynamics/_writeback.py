@@ -1,0 +1,128 @@
+"""Writing identified inertials back into the robot description (URDF or MJCF).
+
+Each joint's body gets the lumped inertial of theta: mass, centre of mass (the inertial frame's
+origin, not rotated) and the full inertia about the centre of mass. The frames that were lumped
+into it (attached by fixed joints) lose theirs: URDF links drop their ``<inertial>``, MJCF bodies
+get an explicit zero mass. Reloading the written file gives the same theta (inertial part;
+friction is not part of a URDF/MJCF inertial and is not written). Everything else in the file is
+kept. Use `RigidBodyModel.write_urdf` / `write_mjcf` rather than these functions.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import torch
+
+__all__ = ["write_urdf", "write_mjcf"]
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))
+
+
+def _values(model, theta: torch.Tensor):
+    inertials = model.inertials(theta.detach().to(torch.float64).cpu())
+    for b in inertials:
+        inertia = b.inertia.numpy()
+        eig = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
+        if eig.min() < -1e-12 * max(1.0, abs(eig).max()):
+            raise ValueError(
+                f"the inertia of body {b.body!r} (joint {b.joint!r}) about its centre of mass is "
+                f"not positive semi-definite (eigenvalues {eig.tolist()}); project theta onto "
+                "physically consistent parameters (torchjfa.physical) before writing it"
+            )
+    return inertials
+
+
+def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
+    """Write ``model.source_xml`` with theta's inertials to ``path`` (URDF models only)."""
+    if model.source_format != "urdf":
+        raise ValueError(
+            f"write_urdf needs a model read from URDF; this one is {model.source_format}"
+        )
+    inertials = _values(model, theta)
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    root = ET.fromstring(model.source_xml, parser=parser)
+    links = {link.get("name"): link for link in root.findall("link")}
+    for b in inertials:
+        link = links[b.body]
+        for old in link.findall("inertial"):
+            link.remove(old)
+        el = ET.SubElement(link, "inertial")
+        ET.SubElement(el, "origin", xyz=" ".join(_fmt(v) for v in b.com.tolist()), rpy="0 0 0")
+        ET.SubElement(el, "mass", value=_fmt(b.mass))
+        inertia = b.inertia.numpy()
+        ET.SubElement(
+            el,
+            "inertia",
+            ixx=_fmt(inertia[0, 0]),
+            ixy=_fmt(inertia[0, 1]),
+            ixz=_fmt(inertia[0, 2]),
+            iyy=_fmt(inertia[1, 1]),
+            iyz=_fmt(inertia[1, 2]),
+            izz=_fmt(inertia[2, 2]),
+        )
+        for name in model.lumped_bodies[b.joint]:
+            for old in links[name].findall("inertial"):
+                links[name].remove(old)
+    ET.indent(root, space="  ")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write('<?xml version="1.0"?>\n')
+        fh.write(ET.tostring(root, encoding="unicode"))
+        fh.write("\n")
+
+
+def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
+    """Write ``model.source_xml`` with theta's inertials to ``path`` (MJCF models only).
+
+    The ``<inertial>`` elements of the joints' bodies are replaced (numbers written in full
+    precision); bodies must be named and defined in the main file (not in an ``<include>``).
+    """
+    if model.source_format != "mjcf":
+        raise ValueError(
+            f"write_mjcf needs a model read from MJCF; this one is {model.source_format}"
+        )
+    inertials = _values(model, theta)
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    root = ET.fromstring(model.source_xml, parser=parser)
+    bodies: dict[str, list[ET.Element]] = {}
+    for el in root.iter("body"):
+        bodies.setdefault(el.get("name", ""), []).append(el)
+
+    def body_el(name: str) -> ET.Element:
+        found = bodies.get(name, [])
+        if not name or len(found) != 1:
+            raise ValueError(
+                f"body {name!r} is not named uniquely in the main MJCF file; cannot write it"
+            )
+        return found[0]
+
+    def set_inertial(body: ET.Element, **attrs: str) -> None:
+        for old in body.findall("inertial"):
+            body.remove(old)
+        body.insert(0, ET.Element("inertial", attrs))
+
+    for b in inertials:
+        inertia = b.inertia.numpy()
+        six = (
+            inertia[0, 0],
+            inertia[1, 1],
+            inertia[2, 2],
+            inertia[0, 1],
+            inertia[0, 2],
+            inertia[1, 2],
+        )
+        set_inertial(
+            body_el(b.body),
+            pos=" ".join(_fmt(v) for v in b.com.tolist()),
+            mass=_fmt(b.mass),
+            fullinertia=" ".join(_fmt(v) for v in six),
+        )
+        for name in model.lumped_bodies[b.joint]:
+            set_inertial(body_el(name), pos="0 0 0", mass="0", diaginertia="0 0 0")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(ET.tostring(root, encoding="unicode"))
+        fh.write("\n")
