@@ -7,3 +7,11 @@ the baselines of the seed paper.
 """
 
 from ._base import LinearEstimator as LinearEstimator
+from ._jfa import JFA as JFA
+from ._jfa import BayesianJFA as BayesianJFA
+from ._lasso import Lasso as Lasso
+from ._linear import OLS as OLS
+from ._linear import TLS as TLS
+from ._linear import Ridge as Ridge
+from ._pls import PLS as PLS
+from ._stepwise import Stepwise as Stepwise

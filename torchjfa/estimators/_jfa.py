@@ -1,0 +1,432 @@
+"""Joint factor analysis regression with input noise: maximum likelihood (`JFA`) and Bayesian.
+
+The model of the seed paper (Ting, Mistry, Peters, Schaal, Nakanishi, "A Bayesian approach to
+nonlinear parameter identification for rigid body dynamics", RSS 2006), Fig. 1(b)/(c): every
+input ``x_m`` is a noisy view ``w_xm t_m + noise`` of a hidden noiseless input ``t_m``, the
+output is ``y = sum_m z_m + noise`` with ``z_m = w_zm t_m + noise``. Use these estimators when
+the regressors themselves are noisy (joint velocities and accelerations of a robot): `BayesianJFA`
+also prunes irrelevant and redundant inputs (automatic relevance determination).
+
+Both are fitted by (variational) EM from the sufficient statistics ``N, X^T X, X^T y, y^T y``
+alone, with the update equations of ``docs/bayesian-jfa.md``: after the single pass that forms
+the statistics, an iteration costs one ``d x d`` matrix-vector product, whatever ``N``.
+
+Known limit (see the note): the de-noised slope ``w_z / w_x`` (eq. 4) is not identified from
+second moments; the prior (or the starting point, for `JFA`) picks it. Pass ``input_noise``
+(a known or estimated noise variance per input, e.g. from repeated excitation periods) to hold
+``psi_x`` fixed and make eq. (4) identified.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+from .._progress import progress_bar
+from .._validation import as_tensor, check_finite, check_X
+from ..stats import Moments, as_folds
+from ._base import LinearEstimator
+from ._bayes_jfa import (
+    _STEP_GROWTH,
+    _bound_const,
+    _coef,
+    _estep,
+    _pack,
+    _squarem,
+    _Stats,
+    _unpack,
+    _update,
+)
+
+__all__ = ["JFA", "BayesianJFA"]
+
+
+class _JFABase(LinearEstimator):
+    """The shared fitting loop; see `JFA` and `BayesianJFA`."""
+
+    _bayes = False
+
+    def __init__(
+        self,
+        *,
+        max_iter: int,
+        tol: float,
+        coef_tol: float,
+        input_noise=None,
+        noise_floor: float,
+        noise_y_floor: float,
+        accelerate: bool,
+        fit_intercept: bool,
+        verbose: bool,
+    ) -> None:
+        super().__init__(fit_intercept=fit_intercept)
+        self.max_iter = max_iter
+        self.tol = tol
+        self.coef_tol = coef_tol
+        self.input_noise = input_noise
+        self.noise_floor = noise_floor
+        self.noise_y_floor = noise_y_floor
+        self.accelerate = accelerate
+        self.verbose = verbose
+
+    # ------------------------------------------------------------------ public API
+    def fit_moments(self, moments: Moments | Sequence[Moments]):
+        """Fit from sufficient statistics (a `Moments`, or fold `Moments` that are summed).
+
+        Returns:
+            ``self``.
+        """
+        total, _ = as_folds(moments)
+        if not float(total.n) > 0:
+            raise ValueError("cannot fit on Moments with no samples (total weight 0)")
+        self._check_params()
+        d = total.n_features
+        dev = total.xtx.device
+        noise = self._input_noise(d, dev)
+        active = self._active_columns(total)
+        m = total.select(active)
+        sxx, sxy, syy, n = self._centered(m)
+        nf = float(n)
+        sx = torch.sqrt(torch.diagonal(sxx) / nf)  # input scales, caller's units
+        sy = torch.sqrt(syy / nf)
+        if not float(sy) > 0:
+            raise ValueError("y is constant (zero variance); there is nothing to regress")
+        S = _Stats(nf, sxx / torch.outer(sx, sx), sxy / (sx * sy), float(syy / (sy * sy)))
+        psx_fixed = None if noise is None else noise[active] / (sx * sx)
+        with torch.no_grad():
+            st, hist, info = self._run(S, psx_fixed)
+        self._store(st, hist, info, active, sx, sy, m, total)
+        return self
+
+    def predict(self, X, *, noiseless: bool = False) -> torch.Tensor:
+        """Predictions, shape ``(n,)``, in ``X``'s dtype.
+
+        Args:
+            X: inputs, shape ``(n, d)``.
+            noiseless: ``False`` (default) for noisy inputs, measured like the training inputs:
+                ``X coef_noisy_ + intercept_noisy_`` (eq. 3, ``E[y | x]``). ``True`` for
+                noiseless inputs: ``X coef_ + intercept_`` (eq. 4).
+        """
+        self._check_fitted()
+        X = check_X(X, n_features=self.n_features_in_)
+        if noiseless:
+            return X @ self.coef_.to(X) + self.intercept_.to(X)
+        return X @ self.coef_noisy_.to(X) + self.intercept_noisy_.to(X)
+
+    # ------------------------------------------------------------------ internals
+    def _check_params(self) -> None:
+        if isinstance(self.max_iter, bool) or int(self.max_iter) != self.max_iter:
+            raise TypeError(f"max_iter must be an integer, got {self.max_iter!r}")
+        if self.max_iter < 1:
+            raise ValueError(f"max_iter must be at least 1, got {self.max_iter}")
+        for name in ("tol", "coef_tol"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+        for name in ("noise_floor", "noise_y_floor"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and 0 < v < 1):
+                raise ValueError(f"{name} must be in (0, 1), got {v!r}")
+
+    def _input_noise(self, d: int, device) -> torch.Tensor | None:
+        if self.input_noise is None:
+            return None
+        v = as_tensor(self.input_noise, name="input_noise", dtype=torch.float64, device=device)
+        if tuple(v.shape) != (d,):
+            raise ValueError(
+                f"input_noise must have shape ({d},), one noise variance per input column, "
+                f"got shape {tuple(v.shape)}"
+            )
+        check_finite(v, "input_noise")
+        if bool((v < 0).any()):
+            raise ValueError(
+                f"input_noise holds variances and must be >= 0; got negative entries at "
+                f"{torch.nonzero(v < 0).flatten().tolist()}"
+            )
+        return v
+
+    def _hyper(self, fixed_x: bool) -> tuple:
+        return (False, 0.0, 0.0, float(self.noise_floor), fixed_x, float(self.noise_y_floor))
+
+    def _init(self, S: _Stats, psx_fixed: torch.Tensor | None) -> tuple:
+        """The note's initialisation, in standardised units (every variance is 1)."""
+        floor = self.noise_floor
+        if psx_fixed is None:
+            psx = torch.full_like(S.dg, 0.5)
+        else:
+            psx = psx_fixed.clamp_min(floor)
+        mx = torch.sqrt((1.0 - psx).clamp_min(0.01))
+        mz = (S.xy / S.n) / mx  # cov(x_m, y) / <w_xm>
+        # the variance of y left over, split equally between psi_y and sum psi_z; when the
+        # w_z above already explain more than var(y) (correlated inputs), keep 1% of it
+        left = max(1.0 - float((mz * mz).sum()), 0.01)
+        psz = torch.full_like(mz, max(0.5 * left / mz.shape[0], floor))
+        zeros = torch.zeros_like(mz)
+        wz2, wx2 = mz * mz, mx * mx
+        b = 0.5 * (wz2 + wx2) + self._hyper(False)[2]  # Q(alpha) once before the first sweep
+        psy = max(0.5 * left, float(self.noise_y_floor))
+        return mz, mx, zeros, zeros, b, psz, psx, psy, wz2, wx2
+
+    def _run(self, S: _Stats, psx_fixed: torch.Tensor | None):
+        """The EM loop, with optional SQUAREM steps. Returns (state, bounds, info)."""
+        fixed_x = psx_fixed is not None
+        hp = self._hyper(fixed_x)
+        bayes = hp[0]
+        free = tuple(
+            i for i in range(8) if (bayes or i not in (2, 3, 4)) and not (fixed_x and i == 6)
+        )
+        const = _bound_const(S.n, S.dg.shape[0], hp)
+        tol, ctol, max_iter = float(self.tol), float(self.coef_tol), int(self.max_iter)
+        scale = max(S.n, 1.0)
+        st = self._init(S, psx_fixed)
+        st = _update(S, _estep(S, st, hp, const)[0], st, hp)  # first sweep: variances > 0
+        es, L = _estep(S, st, hp, const)
+        coef = _coef(st, bayes)
+        hist = [L]
+        reason, n_acc, n_estep, step_max = "max_iter", 0, 2, 1.0
+        bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
+        with bar:
+            while len(hist) < max_iter:
+                # two plain sweeps from st (st0 -> st1 -> st2), then a SQUAREM jump from them
+                path = [st]
+                for _ in range(2):
+                    st = _update(S, es, st, hp)
+                    es, L_new = _estep(S, st, hp, const)
+                    n_estep += 1
+                    hist.append(L_new)
+                    new_coef = _coef(st, bayes)
+                    dc = float(torch.dist(new_coef, coef))
+                    dL, L, coef = abs(L_new - L), L_new, new_coef
+                    if dL <= tol * max(abs(L), scale):
+                        reason = "bound"
+                    elif dc <= ctol * float(torch.linalg.vector_norm(coef)):
+                        reason = "coef"
+                    if reason != "max_iter" or len(hist) >= max_iter:
+                        break
+                    path.append(st)
+                if reason != "max_iter" or len(hist) >= max_iter or not self.accelerate:
+                    if reason != "max_iter" or len(hist) >= max_iter:
+                        break
+                    continue
+                th = [_pack(x, free) for x in (path[0], path[1], st)]
+                trial, alpha = _squarem(*th, step_max)
+                if trial is None:
+                    if alpha >= step_max:
+                        step_max *= _STEP_GROWTH
+                    continue
+                trial = _unpack(trial, st, free, hp)
+                es_t, L_t = _estep(S, trial, hp, const)
+                n_estep += 1
+                if L_t >= L:  # accepted only if the bound does not decrease (a NaN fails)
+                    st, es, L = trial, es_t, L_t
+                    coef = _coef(st, bayes)
+                    hist.append(L)
+                    n_acc += 1
+                    if alpha >= step_max:
+                        step_max *= _STEP_GROWTH
+                elif alpha >= step_max:
+                    step_max = max(1.0, step_max / _STEP_GROWTH)
+                if len(hist) % 100 < 3:
+                    bar.n = len(hist)
+                    bar.set_postfix(bound=f"{L:.8g}", step=f"{step_max:.3g}")
+        info = {"reason": reason, "accepted": n_acc, "n_estep": n_estep, "k": es[0]}
+        return st, torch.tensor(hist, dtype=torch.float64), info
+
+    def _store(self, st, hist, info, active, sx, sy, m: Moments, total: Moments) -> None:
+        """Map the standardised solution back to the caller's units, zeros for constant columns."""
+        mz, mx, vz, vx, b, psz, psx, psy = st[:8]
+        d = total.n_features
+        kw = {"dtype": torch.float64, "device": total.xtx.device}
+        bayes = self._bayes
+        k = info["k"]
+
+        def full(v, fill=0.0):
+            out = torch.full((d,), fill, **kw)
+            out[active] = v
+            return out
+
+        self.coef_ = full(_coef(st, bayes) * sy / sx)
+        self.coef_noisy_ = full(k * sy / sx)
+        self.noise_x_ = full(psx * sx * sx)
+        self.noise_z_ = full(psz * sy * sy)
+        self.noise_y_ = psy * sy * sy  # 0-d tensor
+        self.weights_z_ = full(mz * sy)  # <w_z> in y's units per unit-variance t
+        self.weights_x_ = full(mx * sx)
+        if bayes:
+            self.relevance_ = full((self._hyper(False)[1]) / b, math.inf)
+        self.n_features_in_ = d
+        self.active_ = active
+        if self.fit_intercept:
+            self.intercept_ = total.mean_y - total.mean_x @ self.coef_
+            self.intercept_noisy_ = total.mean_y - total.mean_x @ self.coef_noisy_
+        else:
+            self.intercept_ = torch.zeros((), **kw)
+            self.intercept_noisy_ = torch.zeros((), **kw)
+        # the bound on log p(X, y) in the caller's units: the change of variables adds -N log|J|
+        jac = float(m.n) * float(torch.log(sx).sum() + torch.log(sy))
+        self.lower_bound_ = hist - jac
+        self.n_iter_ = int(hist.shape[0])
+        self.stop_reason_ = info["reason"]
+        self.converged_ = info["reason"] != "max_iter"
+        self.n_accelerated_ = info["accepted"]
+        self.n_estep_ = info["n_estep"]
+
+
+class JFA(_JFABase):
+    """Probabilistic joint factor analysis regression by maximum-likelihood EM (Fig. 1(b)).
+
+    The model of `BayesianJFA` without the priors: ``w_z``, ``w_x`` and the noise variances are
+    point estimates. Prefer `BayesianJFA` on ill-conditioned or redundant inputs.
+
+    Args:
+        max_iter: iteration cap (E-steps of the plain EM path; one ``d x d`` mat-vec each).
+        tol: stop when the log-likelihood changes by at most ``tol * max(|L|, N)``.
+        coef_tol: stop when ``||delta coef|| <= coef_tol ||coef||`` (standardised units).
+        input_noise: optional known noise variance per input, shape ``(d,)``, caller's units
+            (squared units of each column). ``psi_x`` is then held fixed at it.
+        noise_floor: lower bound of psi_x and psi_z, as a fraction of the variance of x_m / y.
+        noise_y_floor: lower bound of psi_y, as a fraction of var(y) (the likelihood is flat
+            along ``psi_y + sum psi_z``).
+        accelerate: SQUAREM steps after every two EM sweeps, kept only when the likelihood
+            does not decrease.
+        fit_intercept: centre ``X`` and ``y`` (inputs are always scaled to unit variance).
+        verbose: show a progress bar.
+
+    Attributes:
+        coef_: ``(d,)`` the noiseless-input slope ``w_z / w_x`` (eq. 4), units of y per unit x.
+        coef_noisy_: ``(d,)`` the noisy-input predictor ``E[y | x]`` (eq. 3).
+        intercept_, intercept_noisy_: 0-d intercepts of ``coef_`` and ``coef_noisy_``.
+        noise_x_, noise_z_: ``(d,)`` psi_x (column units squared) and psi_z (y units squared);
+            0 for constant columns. noise_y_: 0-d psi_y (y units squared).
+        weights_x_, weights_z_: ``(d,)`` the loadings in caller's units (t has unit variance).
+        lower_bound_: ``(n_iter_,)`` the log-likelihood of (X, y) after each iteration, nats.
+        n_iter_, converged_, stop_reason_ (``"bound"``, ``"coef"`` or ``"max_iter"``).
+        n_accelerated_: accepted SQUAREM steps; n_estep_: E-steps computed in all.
+    """
+
+    def __init__(
+        self,
+        *,
+        max_iter: int = 5000,
+        tol: float = 1e-10,
+        coef_tol: float = 1e-7,
+        input_noise=None,
+        noise_floor: float = 1e-6,
+        noise_y_floor: float = 1e-6,
+        accelerate: bool = True,
+        fit_intercept: bool = True,
+        verbose: bool = False,
+    ) -> None:
+        super().__init__(
+            max_iter=max_iter,
+            tol=tol,
+            coef_tol=coef_tol,
+            input_noise=input_noise,
+            noise_floor=noise_floor,
+            noise_y_floor=noise_y_floor,
+            accelerate=accelerate,
+            fit_intercept=fit_intercept,
+            verbose=verbose,
+        )
+
+
+class BayesianJFA(_JFABase):
+    """Bayesian joint factor analysis regression by variational EM (the seed paper, Fig. 1(c)).
+
+    ``w_zm`` and ``w_xm`` share a precision ``alpha_m ~ Gamma(a0, b0)``: an input that does not
+    explain the output is pruned (``alpha_m`` large, both weights near 0), which regularises
+    ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only; each iteration
+    costs one ``d x d`` mat-vec. The update equations are those of ``docs/bayesian-jfa.md``.
+
+    Args:
+        max_iter: iteration cap (one iteration = one VB sweep or one accepted SQUAREM step;
+            each costs one E-step). Convergence along the unidentified direction of eq. (4)
+            is slow, hence the large default; check ``stop_reason_``.
+        tol: stop when the lower bound changes by at most ``tol * max(|L|, N)`` in an iteration.
+        coef_tol: stop when ``||delta coef_|| <= coef_tol ||coef_||`` (standardised units).
+        a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (the note: 1e-8).
+        input_noise: optional known noise variance of each input, shape ``(d,)``, in the
+            caller's units (squared units of each column), e.g. half the variance of the
+            difference between two repeated excitation periods. ``psi_x`` is then held fixed
+            at it, which makes eq. (4) identified. Zeros are allowed (exact columns) and are
+            raised to the noise floor.
+        noise_floor: lower bound of psi_x and psi_z as a fraction of the variance of x_m / y.
+        noise_y_floor: lower bound of psi_y as a fraction of var(y). psi_y drifts towards 0
+            (only ``psi_y + sum psi_z`` is identified) and ends at this floor; ``coef_`` moves
+            with it by O(psi_y) (measured: 3e-4 relative between 1e-3 and the limit), while
+            reaching a smaller floor takes many more iterations. Must be well below
+            ``1 - R^2`` of the data.
+        accelerate: after every two VB sweeps, a SQUAREM extrapolation (Varadhan and Roland
+            2008; means linear, variances in log), kept only if the bound does not decrease,
+            so the bound stays monotone. About 10x fewer iterations on the slow directions.
+        fit_intercept: centre ``X`` and ``y`` (inputs and output are always scaled to unit
+            variance inside; results are mapped back).
+        verbose: show a progress bar.
+
+    Attributes:
+        coef_: ``(d,)`` the noiseless-input estimate of eq. (4), ``<w_z><w_x>/<w_x^2>``, for
+            system identification; 0 for pruned and for constant columns.
+        coef_noisy_: ``(d,)`` the noisy-input predictor of eq. (3) (``= k``, ``E[y | x]``).
+        intercept_, intercept_noisy_: 0-d intercepts of ``coef_`` and of ``coef_noisy_``.
+        noise_x_: ``(d,)`` psi_x, input noise variances (each column's units squared).
+        noise_z_: ``(d,)`` psi_z (y's units squared). noise_y_: 0-d psi_y (y's units squared).
+        relevance_: ``(d,)`` posterior mean ``<alpha_m>``, the prior precision of the loadings
+            of input m in standardised units (x_m and y scaled to unit variance, so
+            dimensionless): about 1 to 10 for a relevant input, orders of magnitude larger for
+            an irrelevant one; ``inf`` for constant columns.
+        weights_x_, weights_z_: ``(d,)`` posterior means of the loadings, caller's units.
+        lower_bound_: ``(n_iter_,)`` float64, the variational lower bound on ``log p(X, y)``
+            (caller's units, nats) after each iteration; non-decreasing.
+        n_iter_: iterations run. converged_: whether a tolerance stopped it. stop_reason_:
+            ``"bound"``, ``"coef"`` or ``"max_iter"``.
+        n_accelerated_: accepted SQUAREM steps; n_estep_: E-steps computed in all.
+        active_: ``(d,)`` bool, the non-constant columns that were modelled.
+
+    Example:
+        >>> est = BayesianJFA(input_noise=noise_var).fit(X, y)  # doctest: +SKIP
+        >>> theta = est.coef_                                   # doctest: +SKIP
+    """
+
+    _bayes = True
+
+    def __init__(
+        self,
+        *,
+        max_iter: int = 20000,
+        tol: float = 1e-12,
+        coef_tol: float = 1e-9,
+        a0: float = 1e-8,
+        b0: float = 1e-8,
+        input_noise=None,
+        noise_floor: float = 1e-6,
+        noise_y_floor: float = 1e-3,
+        accelerate: bool = True,
+        fit_intercept: bool = True,
+        verbose: bool = False,
+    ) -> None:
+        super().__init__(
+            max_iter=max_iter,
+            tol=tol,
+            coef_tol=coef_tol,
+            input_noise=input_noise,
+            noise_floor=noise_floor,
+            noise_y_floor=noise_y_floor,
+            accelerate=accelerate,
+            fit_intercept=fit_intercept,
+            verbose=verbose,
+        )
+        self.a0 = a0
+        self.b0 = b0
+
+    def _check_params(self) -> None:
+        super()._check_params()
+        for name in ("a0", "b0"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+
+    def _hyper(self, fixed_x: bool) -> tuple:
+        floors = (float(self.noise_floor), fixed_x, float(self.noise_y_floor))
+        return (True, float(self.a0) + 1.0, float(self.b0), *floors)
