@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 
 import torch
 
-from ._validation import as_tensor, check_Xy
+from ._validation import as_tensor, check_finite, check_Xy
 
 __all__ = ["Moments", "kfold_moments"]
 
@@ -89,7 +89,7 @@ class Moments:
             y: outputs, shape ``(n,)``.
             weights: optional non-negative row weights, shape ``(n,)``.
         """
-        X, y, weights = check_Xy(X, y, weights)
+        X, y, weights = check_Xy(X, y, weights, finite=False)
         return cls.zeros(X.shape[1], device=X.device).update(X, y, weights)
 
     @classmethod
@@ -113,23 +113,35 @@ class Moments:
             y: shape ``(n,)``.
             weights: optional, shape ``(n,)``.
         """
-        X, y, weights = check_Xy(X, y, weights)
+        # NaN and inf are found from the statistics (a NaN or inf anywhere in a column makes its
+        # sum of squares non-finite), which saves a full pass over the chunk; only then is the
+        # chunk searched, for the error message.
+        X, y, weights = check_Xy(X, y, weights, finite=False)
         if X.shape[1] != self.n_features:
             raise ValueError(f"X has {X.shape[1]} features, these moments have {self.n_features}")
         X = X.to(device=self.xtx.device, dtype=torch.float64)
         y = y.to(device=self.xtx.device, dtype=torch.float64)
-        if weights is None:
-            Xw, yw = X, y
-            self.n += X.shape[0]
-        else:
-            w = weights.to(device=self.xtx.device, dtype=torch.float64)
-            Xw, yw = X * w[:, None], y * w
-            self.n += w.sum()
-        self.sum_x += Xw.sum(0)
-        self.sum_y += yw.sum()
-        self.xtx += Xw.T @ X
-        self.xty += Xw.T @ y
-        self.yty += yw @ y
+        # y and a column of ones (or the weights) side by side: X^T [y, 1] is one pass over X
+        ones = torch.ones_like(y) if weights is None else weights.to(X)
+        yw = y * ones if weights is not None else y
+        Xw = X if weights is None else X * ones[:, None]
+        xtx = Xw.T @ X
+        xt_y1 = X.T @ torch.stack([yw, ones], 1)  # (d, 2)
+        yty, sum_y = yw @ y, yw.sum()
+        if not (
+            bool(torch.isfinite(torch.diagonal(xtx)).all())
+            and bool(torch.isfinite(xt_y1).all())
+            and bool(torch.isfinite(yty))
+        ):
+            check_finite(X, "X")
+            check_finite(y, "y")
+            raise ValueError("the statistics of this chunk overflow float64; rescale the data")
+        self.n += ones.sum()
+        self.sum_x += xt_y1[:, 1]
+        self.sum_y += sum_y
+        self.xtx += xtx
+        self.xty += xt_y1[:, 0]
+        self.yty += yty
         self.n_rows += X.shape[0]
         return self
 
