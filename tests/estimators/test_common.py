@@ -138,10 +138,6 @@ def test_constant_column_gets_exactly_zero(name):
 def test_duplicated_column_does_not_crash(name):
     X, y = _data()
     X = torch.cat([X, X[:, :1]], dim=1)
-    if name == "TLS":  # [X y] has an exact null direction without a y component
-        with pytest.raises(ValueError, match="TLS is degenerate"):
-            FACTORIES[name]().fit(X, y)
-        return
     est = FACTORIES[name]().fit(X, y)
     assert bool(torch.isfinite(est.coef_).all())
     assert float(((y - est.predict(X)) ** 2).mean()) < 0.5 * float(y.var())

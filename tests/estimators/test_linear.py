@@ -166,11 +166,29 @@ def test_tls_degenerate_raises():
     y = torch.tensor([2.0, 2.0, -2.0, -2.0], dtype=torch.float64)
     with pytest.raises(ValueError, match="TLS is degenerate"):
         TLS().fit(X, y)
-    # repeated smallest singular value: two orthogonal inputs and y of the same spread
+
+
+def test_tls_repeated_singular_value_gives_minimum_norm_solution():
+    # two orthogonal inputs and y of the same spread: every direction of [X y] is a minimiser;
+    # the minimum-norm coefficient is 0
     X = torch.tensor([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]], dtype=torch.float64)
     y = torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64)
-    with pytest.raises(ValueError, match="no unique solution"):
-        TLS().fit(X, y)
+    torch.testing.assert_close(TLS().fit(X, y).coef_, torch.zeros(2, dtype=torch.float64))
+
+
+def test_tls_with_duplicated_input_skips_the_exact_collinearity():
+    # [x1, x1] spans the direction of sqrt(2) x1 with orthogonal distances measured along it, so
+    # TLS on [x1, x2, x3, x1] equals TLS on [sqrt(2) x1, x2, x3] with the coefficient split evenly
+    rng = np.random.default_rng(10)
+    X = rng.normal(size=(200, 3))
+    y = X @ np.array([1.0, -2.0, 0.5]) + 0.3 * rng.normal(size=200)
+    scaled = X * np.array([np.sqrt(2.0), 1.0, 1.0])
+    base, _ = _tls_reference(scaled, y, fit_intercept=True)
+    dup = TLS().fit(torch.tensor(np.column_stack([X, X[:, 0]])), torch.tensor(y))
+    coef = dup.coef_.numpy()
+    np.testing.assert_allclose(coef[0], coef[3], rtol=1e-8)
+    np.testing.assert_allclose(coef[0] + coef[3], np.sqrt(2.0) * base[0], rtol=1e-8)
+    np.testing.assert_allclose(coef[1:3], base[1:], rtol=1e-8)
 
 
 @pytest.mark.parametrize(

@@ -184,10 +184,13 @@ class TLS(MomentEstimator):
         noise_variance_: smallest eigenvalue divided by the total weight, the (biased) estimate
             of the common noise variance.
 
+    Exact collinearities among the inputs (redundant columns) are skipped, and a repeated
+    smallest singular value gives the minimum-norm solution over its subspace (Golub and Van
+    Loan, 1980).
+
     Raises:
-        ValueError: at fit, when the TLS problem has no unique solution (the smallest eigenvalue
-            is repeated, or its eigenvector has no output component so the hyperplane is
-            parallel to ``y``).
+        ValueError: at fit, when the least-varying direction of ``[X y]`` that is not an exact
+            input collinearity has no output component (the hyperplane is parallel to ``y``).
     """
 
     def __init__(self, *, fit_intercept: bool = True) -> None:
@@ -198,19 +201,24 @@ class TLS(MomentEstimator):
         d = sxx.shape[0]
         aug = torch.empty(d + 1, d + 1, dtype=sxx.dtype, device=sxx.device)
         aug[:d, :d], aug[:d, d], aug[d, :d], aug[d, d] = sxx, sxy, sxy, syy
-        evals, evecs = torch.linalg.eigh(aug)
-        top = float(evals[-1].abs())
-        if d >= 1 and float(evals[1] - evals[0]) <= 1e-12 * top:
-            raise ValueError(
-                "TLS has no unique solution: the smallest singular value of the centred [X y] is "
-                "repeated; remove redundant inputs or use OLS/Ridge"
-            )
-        v = evecs[:, 0]
-        if float(v[d].abs()) <= math.sqrt(torch.finfo(v.dtype).eps):
+        evals, evecs = torch.linalg.eigh(aug)  # ascending
+        tol = 1e-12 * float(evals[-1].abs())
+        y_min = math.sqrt(torch.finfo(evecs.dtype).eps)
+        # Exact collinearities among the inputs are null directions of [X y] with no output
+        # component; they say nothing about y and are skipped (the minimum-norm solution spreads
+        # the coefficient over the collinear inputs).
+        k = 0
+        while k < d and float(evals[k]) <= tol and float(evecs[d, k].abs()) <= y_min:
+            k += 1
+        # A repeated smallest singular value leaves a subspace of solutions: take the
+        # minimum-norm one over the whole cluster (Golub and Van Loan, 1980, section 3).
+        cluster = (evals >= evals[k] - tol) & (evals <= evals[k] + tol)
+        V2 = evecs[:, cluster]  # (d + 1, p)
+        if float(V2[d].norm()) <= y_min:
             raise ValueError(
                 "TLS is degenerate: the best-fitting hyperplane of [X y] is parallel to the y axis "
                 "(y is uncorrelated with the least-varying input direction), so y cannot be "
                 "expressed in X; use OLS/Ridge or rescale the variables"
             )
-        self.noise_variance_ = float(evals[0].clamp_min(0) / n)
-        return -v[:d] / v[d]
+        self.noise_variance_ = float(evals[k].clamp_min(0) / n)
+        return -(V2[:d] @ V2[d]) / (V2[d] @ V2[d])
