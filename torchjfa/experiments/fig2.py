@@ -1,0 +1,305 @@
+"""The seed paper's synthetic comparison (Fig. 2), run for every estimator of the library.
+
+`run` draws trials with `torchjfa.experiments.synthetic.make_problem`, fits every method on
+the noisy training set (hyper-parameters chosen on the training set only: GCV for ridge,
+contiguous 5-fold cross-validation for PLS and LASSO, an F-test for stepwise) and scores
+normalised MSE (MSE / var(y_test)) on a noiseless and a noisy test set. `summarize` averages over
+trials and `plot` draws the grouped bar chart. ``scripts/reproduce_fig2.py`` and
+``notebooks/fig2.ipynb`` are thin shells over these functions.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import torch
+
+from .._progress import progress_bar
+from ..estimators import JFA, OLS, PLS, TLS, BayesianJFA, Lasso, Ridge, Stepwise
+from .synthetic import SyntheticProblem, make_problem
+
+__all__ = [
+    "Method",
+    "default_methods",
+    "run",
+    "summarize",
+    "improvement_table",
+    "plot",
+    "SCENARIOS",
+]
+
+#: (redundant, irrelevant) pairs of the paper; 10 relevant inputs make 100 in all
+SCENARIOS = ((0, 90), (30, 60), (60, 30), (90, 0))
+
+
+@dataclass(frozen=True)
+class Method:
+    """A named way to fit a problem and get the coefficients used for each test set.
+
+    ``fit(problem)`` returns ``(estimator, coef_clean, coef_noisy)``; intercepts come from the
+    estimator (``intercept_``, or for the Bayesian model the intercept of the estimate used).
+    """
+
+    name: str
+    fit: Callable[
+        [SyntheticProblem], tuple[object, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+    ]
+    bayesian: bool = False
+
+
+def _plain(factory: Callable[[], object]) -> Callable:
+    def fit(p: SyntheticProblem):
+        est = factory().fit(p.X_train, p.y_train)
+        return est, est.coef_, est.intercept_, est.coef_, est.intercept_
+
+    return fit
+
+
+def _bayes(
+    which: str,
+    noise: Callable[[SyntheticProblem], torch.Tensor | None],
+    max_iter: int,
+    cache: dict | None = None,
+) -> Callable:
+    """A Bayesian JFA method; methods that share ``cache`` and ``noise`` share one fit per
+    problem (eq. 3 and eq. 4 are two read-outs of the same fitted model)."""
+
+    def fit(p: SyntheticProblem):
+        key = (id(p), noise)
+        if cache is not None and key in cache and cache[key][0] is p:
+            est, elapsed = cache[key][1:]
+        else:
+            start = time.perf_counter()
+            est = BayesianJFA(input_noise=noise(p), max_iter=max_iter).fit(p.X_train, p.y_train)
+            elapsed = time.perf_counter() - start
+            if cache is not None:
+                cache.clear()  # one problem at a time
+                cache[key] = (p, est, elapsed)
+        fit.last_fit_s = elapsed
+        if which == "eq3":  # the noisy-input predictor for both test sets
+            return est, est.coef_noisy_, est.intercept_noisy_, est.coef_noisy_, est.intercept_noisy_
+        # system identification: eq. (4) on noiseless inputs, eq. (3) on noisy inputs
+        return est, est.coef_, est.intercept_, est.coef_noisy_, est.intercept_noisy_
+
+    return fit
+
+
+def _no_noise(p: SyntheticProblem) -> None:
+    return None
+
+
+def _known_noise(p: SyntheticProblem) -> torch.Tensor:
+    return p.input_noise
+
+
+def _noise_from_repeats(p: SyntheticProblem) -> torch.Tensor:
+    return (p.X_train - p.X_train_repeat).var(0) / 2
+
+
+def default_methods(*, bayes_max_iter: int = 20000) -> list[Method]:
+    """Every method of the comparison: the paper's baselines, TLS and ridge, JFA, and Bayesian
+    JFA as written (eq. 3 and eq. 4) and noise-informed (true noise; noise from repeats)."""
+    shared: dict = {}
+    return [
+        Method("OLS", _plain(OLS)),
+        Method("Ridge (GCV)", _plain(Ridge)),
+        Method("Stepwise", _plain(Stepwise)),
+        Method("PLS (CV)", _plain(PLS)),
+        Method("LASSO (CV)", _plain(Lasso)),
+        Method("TLS", _plain(TLS)),
+        Method("JFA", _plain(JFA)),
+        Method("Bayes JFA, eq. 3", _bayes("eq3", _no_noise, bayes_max_iter, shared), True),
+        Method("Bayes JFA, eq. 4", _bayes("eq4", _no_noise, bayes_max_iter, shared), True),
+        Method(
+            "Bayes JFA, noise from repeats",
+            _bayes("eq4", _noise_from_repeats, bayes_max_iter),
+            True,
+        ),
+        Method("Bayes JFA, known noise", _bayes("eq4", _known_noise, bayes_max_iter), True),
+    ]
+
+
+def _nmse(X: torch.Tensor, y: torch.Tensor, coef: torch.Tensor, intercept: torch.Tensor) -> float:
+    pred = X @ coef.to(X) + intercept.to(X)
+    return float(((pred - y) ** 2).mean() / y.var(unbiased=False))
+
+
+def run(
+    *,
+    scenarios: Sequence[tuple[int, int]] = SCENARIOS,
+    input_snrs: Sequence[float] = (2.0, 5.0),
+    n_trials: int = 10,
+    n_train: int = 1000,
+    n_test: int = 1000,
+    methods: Iterable[Method] | None = None,
+    seed: int = 0,
+    progress: bool = False,
+) -> list[dict]:
+    """Run the protocol and return one row per (scenario, SNR, trial, method, test set).
+
+    Each row: ``redundant``, ``irrelevant``, ``input_snr``, ``trial``, ``method``, ``test``
+    (``"clean"`` or ``"noisy"``), ``nmse``, ``fit_s`` (seconds) and ``n_iter`` (EM iterations,
+    or -1). Trial ``t`` of every scenario and SNR uses seed ``seed + t`` so that methods and
+    settings see the same draws.
+    """
+    methods = list(default_methods() if methods is None else methods)
+    rows: list[dict] = []
+    total = len(scenarios) * len(input_snrs) * n_trials * len(methods)
+    with progress_bar(total=total, desc="Fig. 2", enabled=progress, unit="fit") as bar:
+        for r, u in scenarios:
+            for snr in input_snrs:
+                for trial in range(n_trials):
+                    p = make_problem(
+                        r, u, input_snr=snr, n_train=n_train, n_test=n_test, seed=seed + trial
+                    )
+                    for m in methods:
+                        start = time.perf_counter()
+                        est, c_clean, i_clean, c_noisy, i_noisy = m.fit(p)
+                        # a read-out of a shared fit reports the time of that fit
+                        elapsed = getattr(m.fit, "last_fit_s", time.perf_counter() - start)
+                        base = {
+                            "redundant": r,
+                            "irrelevant": u,
+                            "input_snr": snr,
+                            "trial": trial,
+                            "method": m.name,
+                            "fit_s": elapsed,
+                            "n_iter": int(getattr(est, "n_iter_", -1)),
+                        }
+                        rows.append(
+                            {
+                                **base,
+                                "test": "clean",
+                                "nmse": _nmse(p.X_test_clean, p.y_test_clean, c_clean, i_clean),
+                            }
+                        )
+                        rows.append(
+                            {
+                                **base,
+                                "test": "noisy",
+                                "nmse": _nmse(p.X_test_noisy, p.y_test_noisy, c_noisy, i_noisy),
+                            }
+                        )
+                        bar.update(1)
+    return rows
+
+
+def summarize(rows: Sequence[dict]) -> list[dict]:
+    """Mean and standard deviation over trials of nMSE and fit time, one row per
+    (scenario, SNR, method, test set), in the order first seen."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        key = (row["redundant"], row["irrelevant"], row["input_snr"], row["method"], row["test"])
+        groups.setdefault(key, []).append(row)
+    out = []
+    for (r, u, snr, method, test), g in groups.items():
+        nmse = torch.tensor([x["nmse"] for x in g], dtype=torch.float64)
+        fit_s = torch.tensor([x["fit_s"] for x in g], dtype=torch.float64)
+        out.append(
+            {
+                "redundant": r,
+                "irrelevant": u,
+                "input_snr": snr,
+                "method": method,
+                "test": test,
+                "nmse_mean": float(nmse.mean()),
+                "nmse_std": float(nmse.std()) if len(g) > 1 else 0.0,
+                "fit_s_mean": float(fit_s.mean()),
+                "n_trials": len(g),
+                "n_iter_mean": sum(x["n_iter"] for x in g) / len(g),
+            }
+        )
+    return out
+
+
+def improvement_table(
+    summary: Sequence[dict], *, methods: Sequence[Method] | None = None, test: str = "clean"
+) -> list[dict]:
+    """Per scenario and SNR: the best Bayesian method, the best other method, and the relative
+    nMSE reduction ``1 - best_bayes / best_other`` (positive: the Bayesian method is better)."""
+    bayes_names = {m.name for m in (methods or default_methods()) if m.bayesian}
+    cells: dict[tuple, dict[str, float]] = {}
+    for s in summary:
+        if s["test"] == test:
+            cells.setdefault((s["redundant"], s["irrelevant"], s["input_snr"]), {})[s["method"]] = (
+                s["nmse_mean"]
+            )
+    out = []
+    for (r, u, snr), by_method in cells.items():
+        bayes = {k: v for k, v in by_method.items() if k in bayes_names}
+        other = {k: v for k, v in by_method.items() if k not in bayes_names}
+        if not bayes or not other:
+            continue
+        b_name, o_name = min(bayes, key=bayes.get), min(other, key=other.get)
+        out.append(
+            {
+                "redundant": r,
+                "irrelevant": u,
+                "input_snr": snr,
+                "test": test,
+                "best_bayes": b_name,
+                "best_bayes_nmse": bayes[b_name],
+                "best_other": o_name,
+                "best_other_nmse": other[o_name],
+                "reduction": 1.0 - bayes[b_name] / other[o_name],
+            }
+        )
+    return out
+
+
+def plot(summary: Sequence[dict], path=None):
+    """Grouped bar chart as in the paper's Fig. 2: one panel per (input SNR, test set), groups
+    are scenarios, bars are methods, error bars one standard deviation. Saves to ``path`` (PNG)
+    when given and returns the matplotlib figure."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    snrs = sorted({s["input_snr"] for s in summary})
+    tests = ["clean", "noisy"]
+    methods = list(dict.fromkeys(s["method"] for s in summary))
+    scenarios = list(dict.fromkeys((s["redundant"], s["irrelevant"]) for s in summary))
+    fig, axes = plt.subplots(len(snrs), 2, figsize=(14, 3.6 * len(snrs)), squeeze=False)
+    width = 0.8 / len(methods)
+    cmap = plt.get_cmap("tab20")
+    for i, snr in enumerate(snrs):
+        for j, test in enumerate(tests):
+            ax = axes[i][j]
+            for k, method in enumerate(methods):
+                means, stds = [], []
+                for sc in scenarios:
+                    cell = [
+                        s
+                        for s in summary
+                        if (s["redundant"], s["irrelevant"]) == sc
+                        and s["input_snr"] == snr
+                        and s["test"] == test
+                        and s["method"] == method
+                    ]
+                    means.append(cell[0]["nmse_mean"] if cell else float("nan"))
+                    stds.append(cell[0]["nmse_std"] if cell else 0.0)
+                xs = [n + (k - (len(methods) - 1) / 2) * width for n in range(len(scenarios))]
+                ax.bar(
+                    xs,
+                    means,
+                    width,
+                    yerr=stds,
+                    label=method,
+                    color=cmap(k % 20),
+                    edgecolor="black" if "Bayes" in method else "none",
+                    linewidth=0.6,
+                    capsize=1.5,
+                )
+            ax.set_xticks(range(len(scenarios)))
+            ax.set_xticklabels([f"r={r}, u={u}" for r, u in scenarios])
+            ax.set_ylabel("nMSE")
+            ax.set_title(f"input SNR {snr:g}, {test} test data")
+    axes[0][1].legend(fontsize=7, ncol=2, loc="upper right")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
