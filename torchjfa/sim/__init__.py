@@ -1,1 +1,25 @@
-"""torchjfa.sim"""
+"""Simulated Sarcos-like robots in MuJoCo: models, identification data, controllers.
+
+Use this package to rebuild the seed paper's robot experiments without the robots:
+`load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects,
+`generate_log` records a noisy `SimulatedLog` of the robot tracking a periodic excitation,
+`regressor_noise` estimates the regressor's input noise and the torque noise from the repeated
+periods, and `computed_torque` evaluates identified parameters in closed loop.
+"""
+
+from ._control import ControlResult as ControlResult
+from ._control import computed_torque as computed_torque
+from ._generate import DEFAULT_RATES as DEFAULT_RATES
+from ._generate import generate_log as generate_log
+from ._log import SensorNoise as SensorNoise
+from ._log import SimulatedLog as SimulatedLog
+from ._noise import PeriodNoise as PeriodNoise
+from ._noise import regressor_noise as regressor_noise
+from ._robots import EFFECTS as EFFECTS
+from ._robots import ROBOTS as ROBOTS
+from ._robots import UNMODELED as UNMODELED
+from ._robots import load_robot as load_robot
+from ._robots import model_path as model_path
+from ._robots import robot_effects as robot_effects
+from ._trajectory import SinusoidTrajectory as SinusoidTrajectory
+from ._trajectory import random_trajectory as random_trajectory

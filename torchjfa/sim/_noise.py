@@ -1,0 +1,124 @@
+"""Input and output noise of the regression, estimated from the repeated excitation periods.
+
+With a periodic excitation the robot's true motion repeats every period, so at a fixed phase
+the measured (and differentiated) signals differ between periods only by noise. The variance
+across periods of each regressor entry, averaged over phase and joints, estimates the
+per-column input-noise variance ``psi_x`` of the stacked regression (one row per sample and
+joint, as `RigidBodyModel.moments` stacks them); the variance across periods of the measured
+torque estimates the output noise ``psi_y``. Pass ``input_noise`` to `BayesianJFA` or to the
+projection's metric ``X^T X + N diag(input_noise)``.
+
+The estimate is unbiased when the true motion is exactly periodic (the default controller of
+`generate_log` sees the true state) and the noise is independent between periods. Noise is
+allowed to be correlated within a period (the differentiation filter makes it so).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .._progress import progress_bar
+from ._log import SimulatedLog
+
+__all__ = ["PeriodNoise", "regressor_noise"]
+
+
+@dataclass(frozen=True)
+class PeriodNoise:
+    """Noise variances estimated from repeated periods (float64, the model's joint order).
+
+    Attributes:
+        input_noise: ``(n_params,)`` per-column variance of the regressor rows, averaged over
+            phase and over the rows of every joint (rows where a column is structurally zero
+            count, as they do in the stacked regression).
+        output_noise: 0-d, the torque noise variance averaged over joints, N^2 m^2.
+        output_noise_per_joint: ``(n_dof,)`` torque noise variance per joint.
+        signal_noise: per joint ``(n_dof,)`` variance of ``"q"``, ``"qd"``, ``"qdd"``.
+        n_periods: whole periods used.
+        period_samples: samples per period.
+    """
+
+    input_noise: torch.Tensor
+    output_noise: torch.Tensor
+    output_noise_per_joint: torch.Tensor
+    signal_noise: dict[str, torch.Tensor]
+    n_periods: int
+    period_samples: int
+
+
+def _permutation(model_names, log_names) -> list[int]:
+    model_names, log_names = tuple(model_names), tuple(log_names)
+    if sorted(model_names) != sorted(log_names):
+        raise ValueError(
+            f"the model's joints {model_names} and the log's joints {log_names} differ"
+        )
+    return [log_names.index(j) for j in model_names]
+
+
+def regressor_noise(
+    model, log: SimulatedLog, *, max_periods: int | None = None, progress: bool = False
+) -> PeriodNoise:
+    """Estimate the regressor's per-column input noise and the torque noise of a log.
+
+    Args:
+        model: a `torchjfa.dynamics.RigidBodyModel` of the logged robot (its ``regressor``
+            and ``joint_names`` are used; the log's columns are matched by joint name).
+        log: a `SimulatedLog` (or any object with ``q, qd, qdd, tau`` ``(n, n_dof)``,
+            ``joint_names`` and ``period_samples``) whose first sample starts a period.
+        max_periods: use at most this many whole periods (default all).
+        progress: show a progress bar over the periods.
+
+    Returns:
+        A `PeriodNoise`; the unbiased variance across periods (divisor ``n_periods - 1``).
+
+    Raises:
+        ValueError: if the log has fewer than two whole periods or other joints than the model.
+    """
+    perm = _permutation(model.joint_names, log.joint_names)
+    P = int(log.period_samples)
+    n_per = log.q.shape[0] // P
+    if max_periods is not None:
+        if max_periods < 2:
+            raise ValueError(f"max_periods must be at least 2, got {max_periods}")
+        n_per = min(n_per, int(max_periods))
+    if n_per < 2:
+        raise ValueError(
+            f"the log has {log.q.shape[0]} samples, fewer than two periods of {P}; the noise "
+            "is estimated from the spread between periods"
+        )
+    n_dof = len(perm)
+
+    def periods(x):
+        x = torch.as_tensor(x, dtype=torch.float64)[: n_per * P, perm]
+        return x.reshape(n_per, P, n_dof)
+
+    q, qd, qdd, tau = (periods(v) for v in (log.q, log.qd, log.qdd, log.tau))
+    # Welford over periods: mean and sum of squared deviations of each (phase, joint, column)
+    mean = M2 = None
+    with progress_bar(total=n_per, desc="period noise", enabled=progress, unit="period") as bar:
+        for k in range(n_per):
+            Y = model.regressor(q[k], qd[k], qdd[k])  # (P, n_dof, n_params)
+            if mean is None:
+                mean = Y.clone()
+                M2 = torch.zeros_like(Y)
+            else:
+                delta = Y - mean
+                mean += delta / (k + 1)
+                M2 += delta * (Y - mean)
+            bar.update(1)
+    input_noise = (M2 / (n_per - 1)).mean(dim=(0, 1))
+    tau_var = tau.var(dim=0, correction=1).mean(dim=0)
+    signal = {
+        name: v.var(dim=0, correction=1).mean(dim=0)
+        for name, v in (("q", q), ("qd", qd), ("qdd", qdd))
+    }
+    return PeriodNoise(
+        input_noise=input_noise,
+        output_noise=tau_var.mean(),
+        output_noise_per_joint=tau_var,
+        signal_noise=signal,
+        n_periods=n_per,
+        period_samples=P,
+    )
