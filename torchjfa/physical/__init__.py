@@ -1,1 +1,19 @@
-"""torchjfa.physical"""
+"""Physically consistent parameters: parametrisations, projection and consistency checks.
+
+- `VirtualParameters` (the seed paper's eq. 5) and `LogCholeskyParameters` (Rucker and Wensing,
+  2022): ``nn.Module`` s whose output theta is consistent for every value of their variables.
+- `project`: the consistent theta closest to an unconstrained estimate in the data's metric
+  ``X^T X + N diag(input noise)`` (eq. 8), by LBFGS on either parametrisation.
+- `check`: per-body mass, inertia, triangle-inequality, pseudo-inertia and friction checks.
+"""
+
+from ._check import ConsistencyReport as ConsistencyReport
+from ._check import check as check
+from ._parametrizations import LogCholeskyParameters as LogCholeskyParameters
+from ._parametrizations import VirtualParameters as VirtualParameters
+from ._parametrizations import inertial_from_log_cholesky as inertial_from_log_cholesky
+from ._parametrizations import inertial_from_pseudo_inertia as inertial_from_pseudo_inertia
+from ._parametrizations import inertial_from_virtual as inertial_from_virtual
+from ._project import PARAMETRIZATIONS as PARAMETRIZATIONS
+from ._project import ProjectionResult as ProjectionResult
+from ._project import project as project

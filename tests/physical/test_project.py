@@ -1,0 +1,294 @@
+import numpy as np
+import pytest
+import torch
+
+from torchjfa import Moments
+from torchjfa.dynamics import ParameterLayout, inertial_vector, pseudo_inertia
+from torchjfa.physical import LogCholeskyParameters, VirtualParameters, check, project
+
+PARAMETRIZATIONS = ["virtual", "log-cholesky"]
+
+
+def _layout(n_joints, friction=("viscous",)):
+    return ParameterLayout(tuple(f"j{i}" for i in range(n_joints)), friction)
+
+
+def _cloud_theta(layout, g):
+    """Fully consistent random bodies (point clouds), positive friction."""
+    bodies = []
+    for _ in range(layout.n_joints):
+        points = torch.randn(5, 3, generator=g, dtype=torch.float64) * 0.2
+        weights = torch.rand(5, generator=g, dtype=torch.float64) + 0.2
+        mass = weights.sum()
+        com = (weights[:, None] * points).sum(0) / mass
+        rel = points - com
+        inertia = sum(
+            w * ((r @ r) * torch.eye(3, dtype=torch.float64) - torch.outer(r, r))
+            for w, r in zip(weights, rel, strict=True)
+        )
+        bodies.append(inertial_vector(mass, com, inertia))
+    friction = torch.rand(layout.n_joints, layout.n_friction, generator=g, dtype=torch.float64)
+    return layout.join(torch.stack(bodies), friction + 0.05)
+
+
+def _inconsistent(layout, g):
+    """Consistent bodies damaged: negative masses, indefinite inertias, negative friction."""
+    theta = _cloud_theta(layout, g).reshape(layout.n_joints, -1).clone()
+    theta[::2, 0] = -0.5 * theta[::2, 0]
+    theta[1::2, 4] -= 1.0
+    theta[:, 10] -= 0.3
+    return theta.reshape(-1)
+
+
+def _metric(layout, g, rank_deficiency=3):
+    """X^T X of random regressor-like rows that leave a few directions unexcited."""
+    d = layout.n_params
+    X = torch.randn(4 * d, d, generator=g, dtype=torch.float64)
+    X = X * torch.logspace(0, -2, d, dtype=torch.float64)  # uneven scales
+    X[:, :rank_deficiency] = 0.0
+    return X.T @ X
+
+
+def _clip_baseline(theta, layout):
+    """A simple feasible point written with numpy: mass clipped to >= 1e-3, first moment kept
+    (c = h / m), eigenvalues of I_c clipped at 0, friction clipped at 0."""
+    out = []
+    for row in theta.reshape(layout.n_joints, -1).numpy():
+        m = max(row[0], 1e-3)
+        c = row[1:4] / m
+        io = np.array(
+            [[row[4], row[5], row[7]], [row[5], row[6], row[8]], [row[7], row[8], row[9]]]
+        )
+        ic = io - m * ((c @ c) * np.eye(3) - np.outer(c, c))
+        w, v = np.linalg.eigh(0.5 * (ic + ic.T))
+        ic = (v * np.clip(w, 0, None)) @ v.T
+        io = ic + m * ((c @ c) * np.eye(3) - np.outer(c, c))
+        out.append(
+            [m, *(m * c), io[0, 0], io[0, 1], io[1, 1], io[0, 2], io[1, 2], io[2, 2]]
+            + list(np.clip(row[10:], 0, None))
+        )
+    return torch.tensor(np.concatenate(out), dtype=torch.float64)
+
+
+def _cost(theta, theta_hat, M):
+    delta = theta - theta_hat
+    return float(delta @ M @ delta)
+
+
+@pytest.mark.parametrize("parametrization", PARAMETRIZATIONS)
+@pytest.mark.parametrize("n_joints", [1, 2, 4, 10])
+def test_projection_is_consistent_and_beats_clipping(parametrization, n_joints):
+    g = torch.Generator().manual_seed(n_joints)
+    layout = _layout(n_joints)
+    theta_hat = _inconsistent(layout, g)
+    M = _metric(layout, g, rank_deficiency=min(3, n_joints))
+    assert not check(theta_hat, layout).weakly_ok
+    result = project(theta_hat, layout=layout, metric=M, parametrization=parametrization)
+    assert result.theta.shape == theta_hat.shape
+    report = check(result.theta, layout)
+    assert report.weakly_ok, str(report)
+    if parametrization == "log-cholesky":
+        assert report.ok, str(report)
+    # cost definitions: eq. 8 recomputed here
+    assert result.cost == pytest.approx(_cost(result.theta, theta_hat, M), rel=1e-9)
+    assert result.cost <= result.initial_cost
+    baseline = _clip_baseline(theta_hat, layout)
+    assert check(baseline, layout).weakly_ok
+    assert result.cost <= _cost(baseline, theta_hat, M)
+    assert result.converged
+    torch.testing.assert_close(result.virtual(), result.theta)
+
+
+@pytest.mark.parametrize("parametrization", PARAMETRIZATIONS)
+@pytest.mark.parametrize("friction", [("viscous",), ("viscous", "coulomb", "offset")])
+def test_consistent_theta_comes_back_unchanged(parametrization, friction):
+    g = torch.Generator().manual_seed(7)
+    layout = _layout(5, friction)
+    theta_hat = _cloud_theta(layout, g)
+    M = _metric(layout, g)
+    result = project(theta_hat, layout=layout, metric=M, parametrization=parametrization)
+    torch.testing.assert_close(result.theta, theta_hat, rtol=0, atol=1e-8)
+    assert result.n_iter <= 1
+    assert result.moved(1e-8) == ()
+    assert result.cost < 1e-12
+
+
+def test_virtual_keeps_triangle_violation_log_cholesky_removes_it():
+    layout = _layout(1)
+    pi = inertial_vector(
+        torch.tensor(2.0, dtype=torch.float64),
+        torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64),
+        torch.diag(torch.tensor([0.1, 0.1, 0.3], dtype=torch.float64)),
+    )
+    theta_hat = torch.cat([pi, torch.tensor([0.2], dtype=torch.float64)])
+    M = torch.eye(11, dtype=torch.float64)
+    virtual = project(theta_hat, layout=layout, metric=M, parametrization="virtual")
+    torch.testing.assert_close(virtual.theta, theta_hat, rtol=0, atol=1e-8)
+    full = project(theta_hat, layout=layout, metric=M, parametrization="log-cholesky")
+    assert full.after.ok and not full.before.ok
+    assert full.cost > 1e-4
+
+
+def test_log_cholesky_reaches_the_eigenvalue_clipped_pseudo_inertia():
+    # with the metric that makes theta -> J an isometry onto (Frobenius) 4x4 matrices, the
+    # closest positive semidefinite pseudo-inertia is the eigenvalue-clipped one
+    layout = _layout(1, ())
+    T = torch.stack([pseudo_inertia(e).reshape(-1) for e in torch.eye(10, dtype=torch.float64)], 1)
+    M = T.T @ T  # (theta - t)^T M (theta - t) = ||J(theta) - J(t)||_F^2
+    theta_hat = inertial_vector(
+        torch.tensor(1.0, dtype=torch.float64),
+        torch.tensor([0.2, -0.1, 0.3], dtype=torch.float64),
+        torch.diag(torch.tensor([0.05, 0.02, 0.09], dtype=torch.float64)),
+    )  # violates the triangle inequality: J has one negative eigenvalue
+    eig = torch.linalg.eigvalsh(pseudo_inertia(theta_hat))
+    assert eig[0] < 0 < eig[1]
+    optimum = float((eig.clamp_max(0) ** 2).sum())
+    result = project(theta_hat, layout=layout, metric=M, parametrization="log-cholesky", ridge=0)
+    assert result.cost == pytest.approx(optimum, rel=1e-3)
+    assert result.cost >= optimum * (1 - 1e-9)
+
+
+def test_virtual_reaches_written_out_optimum():
+    # metric = identity, a body with centre of mass at the origin and diagonal inertia: the
+    # closest PSD inertia clips the negative moment, friction is clipped at 0
+    layout = _layout(2)
+    theta_hat = torch.tensor(
+        [2.0, 0, 0, 0, 0.1, 0, 0.2, 0, 0, -0.05, -0.3]
+        + [-1.0, 0, 0, 0, 0.1, 0, 0.1, 0, 0, 0.1, 0.4],
+        dtype=torch.float64,
+    )
+    M = torch.eye(22, dtype=torch.float64)
+    result = project(theta_hat, layout=layout, metric=M, ridge=0)
+    expected = theta_hat.clone()
+    expected[[9, 10]] = 0.0  # Izz and friction of body 0
+    expected[11] = 0.0  # mass of body 1
+    torch.testing.assert_close(result.theta, expected, rtol=0, atol=1e-4)
+    assert result.cost == pytest.approx(0.05**2 + 0.3**2 + 1.0, rel=1e-6)
+    assert result.moved(1e-3) == ("j0", "j1")
+
+
+def test_prior_fills_unexcited_parameters():
+    g = torch.Generator().manual_seed(3)
+    layout = _layout(2)
+    prior = _cloud_theta(layout, g)
+    theta_hat = _inconsistent(layout, g)
+    X = torch.randn(100, 22, generator=g, dtype=torch.float64)
+    X[:, 11:] = 0.0  # body 1 never excited
+    M = X.T @ X
+    with_prior = project(
+        theta_hat, layout=layout, metric=M, prior=prior, prior_weight=1e-3, ridge=0.0
+    )
+    # the prior term is 1e-3 of the data's curvature: converged to ~1e-5 in the parameters
+    torch.testing.assert_close(with_prior.theta[11:], prior[11:], rtol=0, atol=1e-4)
+    without = project(theta_hat, layout=layout, metric=M)
+    assert float((without.theta[11:] - prior[11:]).norm()) > 0.1
+    # the prior is a small pull: the excited body is fitted to the data about as well
+    assert with_prior.cost <= without.cost * 1.01 + 1e-9
+
+
+def test_moments_with_input_noise_equal_the_written_metric():
+    g = torch.Generator().manual_seed(4)
+    layout = _layout(2)
+    X = torch.randn(300, 22, generator=g, dtype=torch.float64)
+    theta_hat = _inconsistent(layout, g)
+    y = X @ theta_hat
+    moments = Moments.from_data(X, y)
+    noise = torch.rand(22, generator=g, dtype=torch.float64) * 0.01
+    a = project(theta_hat, layout=layout, moments=moments, input_noise=noise)
+    b = project(theta_hat, layout=layout, metric=X.T @ X + 300 * torch.diag(noise))
+    torch.testing.assert_close(a.theta, b.theta)
+    assert a.cost == pytest.approx(b.cost)
+
+
+def test_accepts_estimators_models_and_float32():
+    g = torch.Generator().manual_seed(5)
+    layout = _layout(3)
+    theta_hat = _inconsistent(layout, g)
+    M = _metric(layout, g, rank_deficiency=0)
+
+    class Fitted:
+        coef_ = theta_hat
+
+    class Model:
+        pass
+
+    model = Model()
+    model.layout = layout
+    a = project(Fitted(), layout=model, metric=M)
+    b = project(theta_hat.float(), layout=layout, metric=M)
+    assert b.theta.dtype == torch.float32 and a.theta.dtype == torch.float64
+    torch.testing.assert_close(b.theta, a.theta.float(), rtol=1e-3, atol=1e-4)
+    assert b.cost == pytest.approx(a.cost, rel=1e-4)
+    assert isinstance(a.virtual, VirtualParameters)
+    c = project(theta_hat, layout=layout, metric=M, parametrization="log-cholesky")
+    assert isinstance(c.virtual, LogCholeskyParameters)
+
+
+def test_report_is_readable():
+    g = torch.Generator().manual_seed(6)
+    layout = ParameterLayout(("shoulder", "elbow"))
+    theta_hat = _inconsistent(layout, g)
+    result = project(theta_hat, layout=layout, metric=_metric(layout, g))
+    text = str(result)
+    assert "shoulder" in text and "elbow" in text
+    assert "cost (eq. 8)" in text and "converged" in text
+    assert result.relative_change.shape == (2,)
+    assert set(result.moved()) <= {"shoulder", "elbow"}
+    assert result.before.weakly_ok is False and result.after.weakly_ok is True
+
+
+def test_bad_input_raises():
+    layout = _layout(2)
+    theta = torch.zeros(22, dtype=torch.float64)
+    M = torch.eye(22, dtype=torch.float64)
+    moments = Moments.from_data(torch.randn(30, 22), torch.randn(30))
+    with pytest.raises(ValueError, match="exactly one"):
+        project(theta, layout=layout)
+    with pytest.raises(ValueError, match="exactly one"):
+        project(theta, layout=layout, metric=M, moments=moments)
+    with pytest.raises(ValueError, match="input_noise"):
+        project(theta, layout=layout, metric=M, input_noise=0.1)
+    with pytest.raises(ValueError, match="input_noise"):
+        project(theta, layout=layout, moments=moments, input_noise=-torch.ones(22))
+    with pytest.raises(ValueError, match="metric must have shape"):
+        project(theta, layout=layout, metric=torch.eye(3))
+    with pytest.raises(ValueError, match="parametrization"):
+        project(theta, layout=layout, metric=M, parametrization="cholesky")
+    with pytest.raises(ValueError, match="prior"):
+        project(theta, layout=layout, metric=M, prior_weight=1.0)
+    with pytest.raises(ValueError, match="theta_hat must have shape"):
+        project(torch.zeros(5), layout=layout, metric=M)
+    with pytest.raises(TypeError, match="Moments"):
+        project(theta, layout=layout, moments=M)
+    with pytest.raises(ValueError, match="positive semidefinite"):
+        project(theta, layout=layout, metric=-M)
+
+
+@pytest.mark.parametrize("parametrization", PARAMETRIZATIONS)
+@pytest.mark.parametrize("friction", [(), ("viscous", "coulomb", "offset")])
+def test_friction_terms(parametrization, friction):
+    g = torch.Generator().manual_seed(8)
+    layout = _layout(3, friction)
+    theta_hat = _cloud_theta(layout, g).reshape(3, -1).clone()
+    theta_hat[0, 0] = -1.0
+    if friction:
+        theta_hat[:, 11] = torch.tensor([-0.2, 0.3, -0.1], dtype=torch.float64)  # Coulomb
+        theta_hat[:, 12] = torch.tensor([-2.0, 0.5, -0.7], dtype=torch.float64)  # offsets
+    theta_hat = theta_hat.reshape(-1)
+    # identity metric: friction terms are decoupled from the rest and from each other
+    M = torch.eye(layout.n_params, dtype=torch.float64)
+    result = project(theta_hat, layout=layout, metric=M, parametrization=parametrization)
+    assert check(result.theta, layout).weakly_ok
+    if friction:
+        _, fr_hat = layout.split(theta_hat)
+        _, fr = layout.split(result.theta)
+        torch.testing.assert_close(fr[:, 2], fr_hat[:, 2], rtol=0, atol=1e-4)  # offsets kept
+        torch.testing.assert_close(fr[:, :2], fr_hat[:, :2].clamp_min(0), rtol=0, atol=1e-3)
+
+
+def test_verbose_prints_the_table(capsys):
+    g = torch.Generator().manual_seed(9)
+    layout = _layout(2)
+    project(_inconsistent(layout, g), layout=layout, metric=_metric(layout, g), verbose=True)
+    out = capsys.readouterr().out
+    assert "projection (virtual)" in out and "j1" in out

@@ -1,0 +1,199 @@
+"""The optimiser behind `torchjfa.physical.project`: preconditioned LBFGS cycles on phi.
+
+Private: `project` documents the objective, the scaling and the stopping rule.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import torch
+from torch import nn
+
+from .._progress import progress_bar
+
+__all__ = ["Problem", "minimise", "single_thread", "theta_fn"]
+
+
+class Problem:
+    """The objective of `project` and its normalised form for LBFGS.
+
+    Args:
+        theta_hat: ``(d,)`` float64.
+        M: ``(d, d)`` the metric.
+        ridge, prior_weight: dimensionless weights, multiplied by ``tr(M) / d``.
+        prior: ``(d,)`` or None.
+    """
+
+    def __init__(self, theta_hat, M, ridge, prior, prior_weight):
+        d = theta_hat.shape[0]
+        scale = torch.diagonal(M).sum() / d
+        self.theta_hat, self.prior, self.M = theta_hat, prior, M
+        self.ridge = ridge * scale
+        self.weight = prior_weight * scale if prior is not None else 0.0
+        with torch.no_grad():
+            norm = float(self.objective(torch.zeros_like(theta_hat)))
+        self.norm = norm if norm > 0 else float(scale)
+        eye = torch.eye(d, dtype=M.dtype, device=M.device)
+        self.hess = 2.0 * (M + (self.ridge + self.weight) * eye) / self.norm  # of `loss`
+
+    def objective(self, theta: torch.Tensor) -> torch.Tensor:
+        """Eq. 8 plus the ridge and prior terms (see `project`), 0-d."""
+        delta = theta - self.theta_hat
+        f = delta @ (self.M @ delta) + self.ridge * (theta @ theta)
+        if self.prior is not None:
+            f = f + self.weight * ((theta - self.prior) ** 2).sum()
+        return f
+
+    def loss(self, theta: torch.Tensor) -> torch.Tensor:
+        """The objective divided by its value at theta = 0 (the data term's: the energy of the
+        torques theta_hat predicts, plus the prior's)."""
+        return self.objective(theta) / self.norm
+
+
+#: LBFGS iterations between two computations of the preconditioner
+_CYCLE = 25
+#: the stopping test is relative to max(objective, this fraction of the objective at theta = 0)
+_FLOOR = 1e-3
+#: damping of the preconditioner, in units of the normalised objective's curvature
+_MU = 1e-4
+
+
+@contextmanager
+def single_thread() -> Iterator[None]:
+    """Run torch (and its BLAS) on one thread inside the block, then restore the setting.
+
+    The projection's matrices are about 100 x 100: BLAS threads cannot speed them up, and on a
+    busy machine their synchronisation makes a 100 x 100 matrix-vector product hundreds of
+    times slower (scikit-learn limits BLAS threads around such work for the same reason).
+    """
+    threads = torch.get_num_threads()
+    if threads == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def theta_fn(module: nn.Module):
+    """``phi (n_joints * k,) -> theta (n_params,)`` through ``module.theta_from_phi``."""
+    shape = module.phi.shape
+
+    def theta_of(phi_flat: torch.Tensor) -> torch.Tensor:
+        return module.theta_from_phi(phi_flat.reshape(shape))
+
+    return theta_of
+
+
+def minimise(module, problem: Problem, *, max_iter: int, tol: float, verbose: bool):
+    """Preconditioned LBFGS cycles on ``problem.loss(module(phi))`` from ``module.phi``.
+
+    Returns:
+        phi ``(n_joints, k)``, iterations, evaluations, converged (``tol`` met within
+        ``max_iter``).
+    """
+    theta_of = theta_fn(module)
+    phi = module.phi.detach().reshape(-1).clone()
+    n_iter = n_eval = 0
+    converged = False
+    with torch.no_grad():
+        previous = float(problem.loss(theta_of(phi)))
+    with progress_bar(total=max_iter, desc="projection", enabled=verbose) as bar:
+        while n_iter < max_iter:
+            phi, done, evals, finite = _cycle(
+                theta_of, problem, phi, min(_CYCLE, max_iter - n_iter), module.phi.shape[0]
+            )
+            n_iter, n_eval = n_iter + done, n_eval + evals
+            bar.update(done)
+            if not finite:
+                break  # the last step overflowed: keep the last finite point, not converged
+            with torch.no_grad():
+                current = float(problem.loss(theta_of(phi)))
+            bar.set_postfix(objective=f"{current * problem.norm:.5e}")
+            if previous - current <= tol * (abs(current) + _FLOOR) or done == 0:
+                converged = True
+                break
+            previous = current
+    return phi.reshape(module.phi.shape), n_iter, n_eval, converged
+
+
+def _cycle(theta_of, problem: Problem, phi: torch.Tensor, iters: int, n_joints: int):
+    """One LBFGS run of at most ``iters`` iterations in Newton-scaled coordinates from ``phi``.
+
+    Returns:
+        (phi, iterations, evaluations, finite): phi is the start again when the end point's
+        objective is not finite.
+    """
+    hessian = _hessian(theta_of, problem, phi, n_joints)
+    if bool(torch.isfinite(hessian).all()):
+        evals, evecs = torch.linalg.eigh(0.5 * (hessian + hessian.T))
+        P = (evecs * (evals.abs() + _MU).rsqrt()) @ evecs.T
+    else:
+        P = torch.eye(phi.numel(), dtype=phi.dtype, device=phi.device)
+    psi = torch.zeros_like(phi, requires_grad=True)
+    opt = torch.optim.LBFGS(
+        [psi],
+        lr=1.0,
+        max_iter=iters,
+        max_eval=3 * iters,
+        tolerance_grad=1e-14,
+        tolerance_change=1e-16,
+        history_size=_CYCLE,
+        line_search_fn="strong_wolfe",
+    )
+    n_eval = 0
+    with torch.no_grad():
+        worse = 2.0 * abs(float(problem.loss(theta_of(phi)))) + 1.0
+
+    def closure() -> torch.Tensor:
+        nonlocal n_eval
+        opt.zero_grad()
+        loss = problem.loss(theta_of(phi + P @ psi))
+        n_eval += 1
+        if not bool(torch.isfinite(loss)):
+            # a trial step of the line search overflowed (exp in log-Cholesky): report a finite
+            # value worse than the start, with zero gradient, so that the line search steps back
+            psi.grad = torch.zeros_like(psi)
+            return torch.tensor(worse, dtype=phi.dtype, device=phi.device)
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    done = int(opt.state[psi].get("n_iter", 0))
+    new = (phi + P @ psi.detach()).detach()
+    with torch.no_grad():
+        if not bool(torch.isfinite(problem.loss(theta_of(new)))):
+            return phi, done, n_eval, False
+    return new, done, n_eval, True
+
+
+def _hessian(theta_of, problem: Problem, phi: torch.Tensor, n_joints: int) -> torch.Tensor:
+    """Hessian of ``problem.loss(theta_of(phi))`` in phi, ``J^T H J + sum_i g_i d2theta_i``.
+
+    theta of a joint depends on that joint's variables only, so the Jacobian J and the second
+    term are block diagonal: each is assembled from one backward pass per variable of a joint
+    (summed over the joints), with no vmap.
+    """
+    k = phi.numel() // n_joints
+    x = phi.detach().requires_grad_(True)
+    theta = theta_of(x)
+    per = theta.reshape(n_joints, k)
+    jac = phi.new_zeros(n_joints, k, k)
+    for i in range(k):
+        (row,) = torch.autograd.grad(per[:, i].sum(), x, retain_graph=True)
+        jac[:, i, :] = row.reshape(n_joints, k)
+    t = theta.detach().requires_grad_(True)
+    (g,) = torch.autograd.grad(problem.loss(t), t)
+    (v,) = torch.autograd.grad((g * theta).sum(), x, create_graph=True)
+    v = v.reshape(n_joints, k)
+    second = phi.new_zeros(n_joints, k, k)
+    for j in range(k):
+        (row,) = torch.autograd.grad(v[:, j].sum(), x, retain_graph=True, allow_unused=True)
+        if row is not None:  # None: theta is linear in this variable (an offset)
+            second[:, j, :] = row.reshape(n_joints, k)
+    J = torch.block_diag(*jac)
+    return J.T @ problem.hess @ J + torch.block_diag(*second)

@@ -1,0 +1,390 @@
+"""Projection of an unconstrained parameter estimate onto physically consistent parameters.
+
+The seed paper's section III.B: given any estimator's unconstrained theta_hat, find the
+consistent theta closest to it in the metric of the data, eq. 8,
+
+    min_phi  (theta(phi) - theta_hat)^T M (theta(phi) - theta_hat),
+    M = X^T X + N diag(Psi_x),
+
+where theta(phi) is a parametrisation that is consistent for every phi (`VirtualParameters`, the
+paper's eq. 5, or `LogCholeskyParameters`, which adds the triangle inequalities), X^T X and N come
+from `torchjfa.Moments` and Psi_x is the per-column input-noise variance (e.g. from Bayesian JFA).
+Minimising this metric is the same as minimising the training residual ||y - X theta||^2 over
+consistent theta (eq. 6-7), so only the moments are needed, never the data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from .._validation import as_tensor, check_finite
+from ..stats import Moments
+from ._check import ConsistencyReport, check
+from ._optimize import Problem, minimise, single_thread, theta_fn
+from ._parametrizations import (
+    LogCholeskyParameters,
+    VirtualParameters,
+    _check_theta,
+    resolve_layout,
+)
+
+__all__ = ["ProjectionResult", "project", "PARAMETRIZATIONS"]
+
+PARAMETRIZATIONS = {"virtual": VirtualParameters, "log-cholesky": LogCholeskyParameters}
+
+
+@dataclass
+class ProjectionResult:
+    """What `project` returns.
+
+    Attributes:
+        theta: consistent parameters, ``(n_params,)``, in ``theta_hat``'s dtype.
+        theta_hat: the unconstrained input, ``(n_params,)``.
+        virtual: the fitted parametrisation module (`VirtualParameters` or
+            `LogCholeskyParameters`, float64); ``virtual()`` returns ``theta`` in float64.
+        parametrization: ``"virtual"`` or ``"log-cholesky"``.
+        cost: eq. 8 at the result, ``(theta - theta_hat)^T M (theta - theta_hat)`` (torque^2
+            units: how much the training residual sum of squares grows over theta_hat's).
+        initial_cost: the same for ``from_theta(theta_hat)`` (theta_hat itself when it is
+            consistent, otherwise its clipped version), the simple alternative to projecting.
+        objective, initial_objective: what was minimised: ``cost`` plus the ridge and prior
+            terms (see `project`).
+        n_iter: LBFGS iterations (both phases of a warm start); n_eval: evaluations.
+        converged: the stopping test on ``tol`` was met within ``max_iter``.
+        grad_max: largest absolute gradient of the normalised objective in phi at the end.
+        relative_change: ``(n_joints,)`` ``||theta_j - theta_hat_j|| / ||theta_hat_j||`` over each
+            joint's parameters (inertial and friction; mixed units, a rough measure).
+        mass_change: ``(n_joints,)`` kg.
+        before, after: `check` reports of theta_hat and theta.
+    """
+
+    theta: torch.Tensor
+    theta_hat: torch.Tensor
+    virtual: nn.Module
+    parametrization: str
+    cost: float
+    initial_cost: float
+    objective: float
+    initial_objective: float
+    n_iter: int
+    n_eval: int
+    converged: bool
+    grad_max: float
+    relative_change: torch.Tensor
+    mass_change: torch.Tensor
+    before: ConsistencyReport = field(repr=False)
+    after: ConsistencyReport = field(repr=False)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.after.joint_names
+
+    def moved(self, threshold: float = 1e-6) -> tuple[str, ...]:
+        """Joints whose parameters changed by more than ``threshold`` (relative)."""
+        return tuple(
+            n
+            for n, r in zip(self.joint_names, self.relative_change.tolist(), strict=False)
+            if r > threshold
+        )
+
+    def table(self) -> str:
+        """A readable report: one row per body, then the optimisation summary."""
+        head = (
+            f"{'joint':<16} {'mass in':>10} {'mass out':>10} {'rel. change':>12} "
+            f"{'in ok':>6} {'out ok':>6}"
+        )
+        lines = [f"projection ({self.parametrization})", head, "-" * len(head)]
+        ok_in = self.before.body_ok
+        ok_out = self.after.body_ok
+        for j, name in enumerate(self.joint_names):
+            lines.append(
+                f"{name[:16]:<16} {float(self.before.mass[j]):>10.4g} "
+                f"{float(self.after.mass[j]):>10.4g} {float(self.relative_change[j]):>12.3g} "
+                f"{'yes' if bool(ok_in[j]) else 'no':>6} {'yes' if bool(ok_out[j]) else 'no':>6}"
+            )
+        lines.append(
+            f"cost (eq. 8) {self.initial_cost:.6g} -> {self.cost:.6g}; objective "
+            f"{self.initial_objective:.6g} -> {self.objective:.6g}; {self.n_iter} iterations, "
+            f"{self.n_eval} evaluations, {'converged' if self.converged else 'NOT converged'} "
+            f"(max |grad| {self.grad_max:.2g})"
+        )
+        lines.append(
+            f"fully consistent: {'yes' if self.after.ok else 'no'}; mass, I_c and friction: "
+            f"{'yes' if self.after.weakly_ok else 'no'}"
+        )
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.table()
+
+
+def _metric(moments, metric, input_noise, d: int, device) -> torch.Tensor:
+    if (moments is None) == (metric is None):
+        raise ValueError("give exactly one of moments= (a Moments) and metric= (a (d, d) matrix)")
+    if metric is not None:
+        if input_noise is not None:
+            raise ValueError(
+                "input_noise needs the number of samples: pass moments= instead of metric=, or "
+                "add N diag(input_noise) to the metric yourself"
+            )
+        M = as_tensor(metric, name="metric", dtype=torch.float64, device=device)
+        if tuple(M.shape) != (d, d):
+            raise ValueError(f"metric must have shape ({d}, {d}), got {tuple(M.shape)}")
+        check_finite(M, "metric")
+    else:
+        if not isinstance(moments, Moments):
+            raise TypeError(f"moments must be a torchjfa.Moments, got {type(moments).__name__}")
+        if moments.n_features != d:
+            raise ValueError(f"moments have {moments.n_features} features, theta has {d}")
+        M = moments.xtx.to(device=device, dtype=torch.float64)
+        if input_noise is not None:
+            noise = as_tensor(input_noise, name="input_noise", dtype=torch.float64, device=device)
+            if noise.ndim > 1 or (noise.ndim == 1 and noise.shape[0] != d):
+                raise ValueError(
+                    f"input_noise must be a scalar or have shape ({d},), got {tuple(noise.shape)}"
+                )
+            check_finite(noise, "input_noise")
+            if bool((noise < 0).any()):
+                raise ValueError("input_noise holds variances and must be non-negative")
+            M = M + moments.n.to(device) * torch.diag(noise.expand(d))
+    M = 0.5 * (M + M.T)
+    diag = torch.diagonal(M)
+    if bool((diag < 0).any()) or not float(diag.sum()) > 0:
+        raise ValueError(
+            "the metric must be positive semidefinite with a positive trace (X^T X of data that "
+            "excites at least one parameter)"
+        )
+    return M
+
+
+def project(
+    theta_hat,
+    *,
+    layout,
+    moments: Moments | None = None,
+    metric=None,
+    input_noise=None,
+    parametrization: str = "virtual",
+    prior=None,
+    prior_weight: float = 0.0,
+    ridge: float = 1e-8,
+    max_iter: int = 1000,
+    tol: float = 1e-5,
+    warm_start: bool = True,
+    verbose: bool = False,
+) -> ProjectionResult:
+    """Physically consistent parameters closest to ``theta_hat`` in the data's metric (eq. 8).
+
+    Minimises, over the free variables phi of the chosen parametrisation (theta = theta(phi)),
+
+        (theta - theta_hat)^T M (theta - theta_hat)             eq. 8: the increase of the
+                                                                  training residual sum of squares
+            + ridge * s * ||theta||^2                            tie-break in the null space of M
+            + prior_weight * s * ||theta - prior||^2             optional pull to nominal values
+
+    with ``M = X^T X + N diag(input_noise)`` from ``moments`` (or ``M = metric``) and
+    ``s = tr(M) / n_params``, by ``torch.optim.LBFGS`` with a strong-Wolfe line search.
+
+    Scaling and the null space. ``s`` (the mean diagonal of M) makes ``ridge`` and
+    ``prior_weight`` dimensionless: ``prior_weight=1`` weighs each parameter's distance to the
+    prior like the data weigh an average parameter. M is singular for every real robot
+    (unidentifiable parameter combinations); the tiny default ridge makes the problem well posed
+    by preferring, among consistent parameters that fit the data equally well, small ones. It
+    pulls towards 0 rather than towards theta_hat on purpose: an unregularised estimate on poor
+    data has huge components along weakly excited directions, which a pull towards theta_hat
+    would force the consistent parameters to imitate. Parameters the data do not excite thus
+    end small (an unexcited mass can end near 0), and are determined only loosely (the ridge is
+    1e-8 of the data's weight, below the stopping test's resolution). A ``prior`` (CAD values)
+    is the better way to pin what the data do not determine. A theta_hat that is already
+    consistent (exactly representable by the parametrisation) minimises eq. 8 and is returned
+    unchanged when no prior is given.
+
+    Optimisation. LBFGS sees the objective divided by its value at theta = 0 and runs in cycles
+    of 25 iterations, each in coordinates ``phi = phi_start + P psi`` with
+    ``P = (|H| + 1e-4)^(-1/2)``, H the Hessian in phi at the cycle's start (absolute
+    eigenvalues), so that every direction has a curvature near 1 however ill-conditioned M is.
+    It stops when a cycle lowers the objective by less than ``tol`` times the larger of the
+    objective and 1e-3 of its value at theta = 0, or after ``max_iter`` iterations. The
+    optimisation runs with one torch thread (the setting is restored afterwards): on matrices
+    this small, BLAS threads only add synchronisation, which on a busy machine slows each
+    product down a hundredfold.
+
+    Starting point. The objective in phi is not convex (eq. 5 has stationary points where a
+    body's mass is 0: the gradient with respect to its centre of mass vanishes there), so the
+    start matters. Candidates: ``from_theta(theta_hat)`` (theta_hat with masses, inertias and
+    friction clipped); the same for theta_hat without its components along directions the data
+    barely excite (eigenvalues of the column-scaled M below 1e-8 of the largest: an
+    unregularised estimate can be huge there); the module's default body (1 kg, 0.01 kg m^2);
+    for ``"log-cholesky"`` the pseudo-inertia clip of the eq.-5 clip; for ``"virtual"`` with
+    ``warm_start`` the log-Cholesky projection (fully consistent, a subset of eq. 5's set); and
+    the prior. LBFGS starts from the one with the lowest objective.
+
+    Args:
+        theta_hat: unconstrained estimate, shape ``(n_params,)`` (or a fitted estimator with a
+            ``coef_`` attribute).
+        layout: a `ParameterLayout` or an object with ``.layout`` (a robot model).
+        moments: `torchjfa.Moments` of the regressor rows (``xtx`` and ``n`` are used).
+        metric: the matrix M, ``(n_params, n_params)`` symmetric PSD, instead of ``moments``.
+        input_noise: per-column input-noise variance, scalar or ``(n_params,)`` (only with
+            ``moments``), in the squared units of the regressor columns.
+        parametrization: ``"virtual"`` (eq. 5: mass >= 0, PSD inertia at the centre of mass,
+            friction >= 0) or ``"log-cholesky"`` (positive definite pseudo-inertia: also the
+            triangle inequalities).
+        prior: nominal (e.g. CAD) parameters, ``(n_params,)``; needs ``prior_weight > 0``.
+        prior_weight: weight of the prior term, dimensionless (see above).
+        ridge: weight of the tie-break term, dimensionless, >= 0.
+        max_iter: largest number of LBFGS iterations (per phase with the warm start).
+        tol: relative decrease of the objective over one cycle of 25 iterations below which
+            the optimisation stops (see above).
+        warm_start: for ``"virtual"``, try the log-Cholesky projection as a start (about twice
+            the work, usually a lower cost).
+        verbose: show a progress bar and print the result table.
+
+    Returns:
+        A `ProjectionResult`: ``.theta`` (consistent), ``.virtual`` (the fitted module), the
+        cost before and after, iterations, convergence, per-body changes and consistency
+        reports; ``print(result)`` shows them.
+
+    Raises:
+        ValueError: on shapes that do not match the layout, NaN, a metric that is not PSD,
+            both or neither of ``moments`` and ``metric``, negative weights or an unknown
+            parametrisation.
+        TypeError: if ``moments`` is not a `Moments` or ``layout`` has no `ParameterLayout`.
+
+    Example:
+        >>> moments = model.moments(q, qd, qdd, tau)                           # doctest: +SKIP
+        >>> theta_hat = OLS(fit_intercept=False).fit_moments(moments).coef_     # doctest: +SKIP
+        >>> result = project(theta_hat, layout=model, moments=moments)          # doctest: +SKIP
+        >>> print(result)                                                       # doctest: +SKIP
+    """
+    layout = resolve_layout(layout)
+    if hasattr(theta_hat, "coef_"):
+        theta_hat = theta_hat.coef_
+    theta_hat = _check_theta(theta_hat, layout, "theta_hat").detach()
+    if parametrization not in PARAMETRIZATIONS:
+        raise ValueError(
+            f"parametrization must be one of {tuple(PARAMETRIZATIONS)}, got {parametrization!r}"
+        )
+    for name, value in (("ridge", ridge), ("prior_weight", prior_weight), ("tol", tol)):
+        if not float(value) >= 0:
+            raise ValueError(f"{name} must be non-negative, got {value}")
+    if int(max_iter) < 1:
+        raise ValueError(f"max_iter must be at least 1, got {max_iter}")
+    device, d = theta_hat.device, layout.n_params
+    th = theta_hat.to(torch.float64)
+    M = _metric(moments, metric, input_noise, d, device)
+    if prior is not None:
+        prior = _check_theta(prior, layout, "prior").to(device=device, dtype=torch.float64)
+    if float(prior_weight) > 0 and prior is None:
+        raise ValueError("prior_weight > 0 needs prior= (nominal parameters, shape (n_params,))")
+    problem = Problem(
+        th, M, float(ridge), prior if float(prior_weight) > 0 else None, float(prior_weight)
+    )
+
+    cls = PARAMETRIZATIONS[parametrization]
+    with single_thread():
+        fitted, n_iter, n_eval, converged = _solve(
+            cls,
+            layout,
+            problem,
+            warm_start=warm_start,
+            max_iter=int(max_iter),
+            tol=float(tol),
+            verbose=verbose,
+        )
+    phi = fitted.phi.detach()
+
+    with torch.no_grad():
+        theta0 = cls.from_theta(th, layout)()
+        theta64 = fitted()
+    phi_end = phi.reshape(-1).clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(problem.loss(theta_fn(fitted)(phi_end)), phi_end)
+
+    inertial_hat, _ = layout.split(th)
+    per_hat = th.reshape(layout.n_joints, -1)
+    per_new = theta64.reshape(layout.n_joints, -1)
+    denom = per_hat.norm(dim=-1)
+    rel = (per_new - per_hat).norm(dim=-1) / torch.where(denom > 0, denom, torch.ones_like(denom))
+    result = ProjectionResult(
+        theta=theta64.to(theta_hat.dtype),
+        theta_hat=theta_hat,
+        virtual=fitted,
+        parametrization=parametrization,
+        cost=_eq8(theta64, th, M),
+        initial_cost=_eq8(theta0, th, M),
+        objective=float(problem.objective(theta64)),
+        initial_objective=float(problem.objective(theta0)),
+        n_iter=n_iter,
+        n_eval=n_eval,
+        converged=converged,
+        grad_max=float(grad.abs().max()),
+        relative_change=rel,
+        mass_change=per_new[:, 0] - inertial_hat[:, 0],
+        before=check(th, layout),
+        after=check(theta64, layout),
+    )
+    if verbose:
+        print(result.table())
+    return result
+
+
+def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose):
+    """Fit a ``cls`` module; returns (module, iterations, evaluations, converged)."""
+    th = problem.theta_hat
+    exact = cls.from_theta(th, layout)
+    with torch.no_grad():
+        representable = bool(torch.allclose(exact(), th, rtol=1e-12, atol=1e-14))
+    if representable and problem.prior is None:
+        return exact, 0, 0, True  # theta_hat is consistent: it minimises eq. 8
+    # starting points: theta_hat made consistent by clipping, and the alternatives below; the
+    # one with the lowest objective wins
+    starts = [exact, cls(layout), cls.from_theta(_truncated(th, problem.M), layout)]
+    if cls is LogCholeskyParameters:
+        with torch.no_grad():
+            clipped = VirtualParameters.from_theta(th, layout)()
+        starts.append(cls.from_theta(clipped, layout))
+    n_iter = n_eval = 0
+    if cls is VirtualParameters and warm_start and not representable:
+        fully, n_iter, n_eval, _ = _solve(
+            LogCholeskyParameters,
+            layout,
+            problem,
+            warm_start=False,
+            max_iter=max_iter,
+            tol=tol,
+            verbose=verbose,
+        )
+        with torch.no_grad():
+            starts.append(cls.from_theta(fully(), layout))
+    if problem.prior is not None:
+        starts.append(cls.from_theta(problem.prior, layout))
+    with torch.no_grad():
+        losses = [float(problem.loss(m())) for m in starts]
+    finite = [(v, i) for i, v in enumerate(losses) if v == v and v != float("inf")]
+    module = starts[min(finite)[1]] if finite else exact
+    phi, k, e, converged = minimise(module, problem, max_iter=max_iter, tol=tol, verbose=verbose)
+    return cls(layout, phi=phi), n_iter + k, n_eval + e, converged
+
+
+def _truncated(theta_hat: torch.Tensor, M: torch.Tensor, rcond: float = 1e-8) -> torch.Tensor:
+    """theta_hat without its components along directions the data barely excite.
+
+    In the column-scaled metric ``C = D^-1/2 M D^-1/2`` (``D = diag M``), the components along
+    eigenvectors with eigenvalue below ``rcond`` times the largest are removed. An
+    unregularised estimate on poorly exciting data can be huge along those directions (they
+    cost almost nothing in eq. 8); clipping such an estimate gives an absurd start.
+    """
+    scale = torch.diagonal(M).clamp_min(0).sqrt()
+    scale = torch.where(scale > 0, scale, torch.ones_like(scale))
+    C = M / torch.outer(scale, scale)
+    evals, evecs = torch.linalg.eigh(0.5 * (C + C.T))
+    keep = evecs[:, evals > rcond * evals[-1]]
+    return (keep @ (keep.T @ (theta_hat * scale))) / scale
+
+
+def _eq8(theta: torch.Tensor, theta_hat: torch.Tensor, M: torch.Tensor) -> float:
+    delta = theta - theta_hat
+    return float(delta @ (M @ delta))
