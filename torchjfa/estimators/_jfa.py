@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 from .._progress import progress_bar
@@ -41,6 +42,11 @@ from ._bayes_jfa import (
 )
 
 __all__ = ["JFA", "BayesianJFA"]
+
+
+def _np(t: torch.Tensor) -> np.ndarray:
+    """A CPU float64 NumPy copy of a tensor (the loop's working arrays)."""
+    return t.detach().to(device="cpu", dtype=torch.float64).numpy().copy()
 
 
 class _JFABase(LinearEstimator):
@@ -93,10 +99,15 @@ class _JFABase(LinearEstimator):
         sy = torch.sqrt(syy / nf)
         if not float(sy) > 0:
             raise ValueError("y is constant (zero variance); there is nothing to regress")
-        S = _Stats(nf, sxx / torch.outer(sx, sx), sxy / (sx * sy), float(syy / (sy * sy)))
-        psx_fixed = None if noise is None else noise[active] / (sx * sx)
-        with torch.no_grad():
-            st, hist, info = self._run(S, psx_fixed)
+        # the loop runs on CPU float64 NumPy copies of the O(d^2) moments (see _bayes_jfa.py)
+        S = _Stats(
+            nf,
+            _np(sxx / torch.outer(sx, sx)),
+            _np(sxy / (sx * sy)),
+            float(syy / (sy * sy)),
+        )
+        psx_fixed = None if noise is None else _np(noise[active] / (sx * sx))
+        st, hist, info = self._run(S, psx_fixed)
         self._store(st, hist, info, active, sx, sy, m, total)
         return self
 
@@ -150,104 +161,106 @@ class _JFABase(LinearEstimator):
     def _hyper(self, fixed_x: bool) -> tuple:
         return (False, 0.0, 0.0, float(self.noise_floor), fixed_x, float(self.noise_y_floor))
 
-    def _init(self, S: _Stats, psx_fixed: torch.Tensor | None) -> tuple:
+    def _init(self, S: _Stats, psx_fixed: np.ndarray | None) -> tuple:
         """The note's initialisation, in standardised units (every variance is 1)."""
         floor = self.noise_floor
-        if psx_fixed is None:
-            psx = torch.full_like(S.dg, 0.5)
-        else:
-            psx = psx_fixed.clamp_min(floor)
-        mx = torch.sqrt((1.0 - psx).clamp_min(0.01))
+        d = S.dg.shape[0]
+        psx = np.full(d, 0.5) if psx_fixed is None else np.maximum(psx_fixed, floor)
+        mx = np.sqrt(np.maximum(1.0 - psx, 0.01))
         mz = (S.xy / S.n) / mx  # cov(x_m, y) / <w_xm>
         # the variance of y left over, split equally between psi_y and sum psi_z; when the
         # w_z above already explain more than var(y) (correlated inputs), keep 1% of it
-        left = max(1.0 - float((mz * mz).sum()), 0.01)
-        psz = torch.full_like(mz, max(0.5 * left / mz.shape[0], floor))
-        zeros = torch.zeros_like(mz)
-        wz2, wx2 = mz * mz, mx * mx
-        b = 0.5 * (wz2 + wx2) + self._hyper(False)[2]  # Q(alpha) once before the first sweep
+        left = max(1.0 - float(mz @ mz), 0.01)
+        psz = np.full(d, max(0.5 * left / d, floor))
+        M = np.stack((mz, mx))
+        W2 = M * M
+        b = 0.5 * W2.sum(0) + self._hyper(False)[2]  # Q(alpha) once before the first sweep
         psy = max(0.5 * left, float(self.noise_y_floor))
-        return mz, mx, zeros, zeros, b, psz, psx, psy, wz2, wx2
+        return M, np.zeros_like(M), W2, b, np.stack((psz, psx)), psy
 
-    def _run(self, S: _Stats, psx_fixed: torch.Tensor | None):
+    def _run(self, S: _Stats, psx_fixed: np.ndarray | None):
         """The EM loop, with optional SQUAREM steps. Returns (state, bounds, info)."""
-        fixed_x = psx_fixed is not None
-        hp = self._hyper(fixed_x)
+        hp = self._hyper(psx_fixed is not None)
         bayes = hp[0]
-        free = tuple(
-            i for i in range(8) if (bayes or i not in (2, 3, 4)) and not (fixed_x and i == 6)
-        )
         const = _bound_const(S.n, S.dg.shape[0], hp)
         tol, ctol, max_iter = float(self.tol), float(self.coef_tol), int(self.max_iter)
         scale = max(S.n, 1.0)
-        st = self._init(S, psx_fixed)
-        st = _update(S, _estep(S, st, hp, const)[0], st, hp)  # first sweep: variances > 0
-        es, L = _estep(S, st, hp, const)
-        coef = _coef(st, bayes)
-        hist = [L]
-        reason, n_acc, n_estep, step_max = "max_iter", 0, 2, 1.0
-        bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
-        with bar:
-            while len(hist) < max_iter:
-                # two plain sweeps from st (st0 -> st1 -> st2), then a SQUAREM jump from them
-                path = [st]
-                for _ in range(2):
-                    st = _update(S, es, st, hp)
-                    es, L_new = _estep(S, st, hp, const)
+        with np.errstate(all="ignore"):  # a rejected SQUAREM trial may overflow; NaN fails it
+            st = self._init(S, psx_fixed)
+            # first sweep (no bound: the variances are still 0)
+            st = _update(S, _estep(S, st, hp, const, bound=False)[0], st, hp)
+            es, L = _estep(S, st, hp, const)
+            coef = _coef(st, bayes)
+            hist = [L]
+            reason, n_acc, n_estep, step_max = "max_iter", 0, 2, 1.0
+            bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
+            with bar:
+                while len(hist) < max_iter:
+                    # two plain sweeps from st (st0 -> st1 -> st2), then a SQUAREM jump
+                    th0 = _pack(st, hp) if self.accelerate else None
+                    ths = []
+                    for _ in range(2):
+                        st = _update(S, es, st, hp)
+                        es, L_new = _estep(S, st, hp, const)
+                        n_estep += 1
+                        hist.append(L_new)
+                        new_coef = _coef(st, bayes)
+                        dc = float(np.linalg.norm(new_coef - coef))
+                        dL, L, coef = abs(L_new - L), L_new, new_coef
+                        if dL <= tol * max(abs(L), scale):
+                            reason = "bound"
+                        elif dc <= ctol * float(np.linalg.norm(coef)):
+                            reason = "coef"
+                        if reason != "max_iter" or len(hist) >= max_iter:
+                            break
+                        if self.accelerate:
+                            ths.append(_pack(st, hp))
+                    if reason != "max_iter" or len(hist) >= max_iter:
+                        break
+                    if not self.accelerate:
+                        continue
+                    trial, alpha = _squarem(th0, ths[0], ths[1], step_max)
+                    if trial is None:
+                        if alpha >= step_max:
+                            step_max *= _STEP_GROWTH
+                        continue
+                    trial = _unpack(trial, st, hp)
+                    es_t, L_t = _estep(S, trial, hp, const)
                     n_estep += 1
-                    hist.append(L_new)
-                    new_coef = _coef(st, bayes)
-                    dc = float(torch.dist(new_coef, coef))
-                    dL, L, coef = abs(L_new - L), L_new, new_coef
-                    if dL <= tol * max(abs(L), scale):
-                        reason = "bound"
-                    elif dc <= ctol * float(torch.linalg.vector_norm(coef)):
-                        reason = "coef"
-                    if reason != "max_iter" or len(hist) >= max_iter:
-                        break
-                    path.append(st)
-                if reason != "max_iter" or len(hist) >= max_iter or not self.accelerate:
-                    if reason != "max_iter" or len(hist) >= max_iter:
-                        break
-                    continue
-                th = [_pack(x, free) for x in (path[0], path[1], st)]
-                trial, alpha = _squarem(*th, step_max)
-                if trial is None:
-                    if alpha >= step_max:
-                        step_max *= _STEP_GROWTH
-                    continue
-                trial = _unpack(trial, st, free, hp)
-                es_t, L_t = _estep(S, trial, hp, const)
-                n_estep += 1
-                if L_t >= L:  # accepted only if the bound does not decrease (a NaN fails)
-                    st, es, L = trial, es_t, L_t
-                    coef = _coef(st, bayes)
-                    hist.append(L)
-                    n_acc += 1
-                    if alpha >= step_max:
-                        step_max *= _STEP_GROWTH
-                elif alpha >= step_max:
-                    step_max = max(1.0, step_max / _STEP_GROWTH)
-                if len(hist) % 100 < 3:
-                    bar.n = len(hist)
-                    bar.set_postfix(bound=f"{L:.8g}", step=f"{step_max:.3g}")
+                    if L_t >= L:  # accepted only if the bound does not decrease (NaN fails)
+                        st, es, L = trial, es_t, L_t
+                        coef = _coef(st, bayes)
+                        hist.append(L)
+                        n_acc += 1
+                        if alpha >= step_max:
+                            step_max *= _STEP_GROWTH
+                    elif alpha >= step_max:
+                        step_max = max(1.0, step_max / _STEP_GROWTH)
+                    if self.verbose and len(hist) % 100 < 3:
+                        bar.n = len(hist)
+                        bar.set_postfix(bound=f"{L:.8g}", step=f"{step_max:.3g}")
         info = {"reason": reason, "accepted": n_acc, "n_estep": n_estep, "k": es[0]}
         return st, torch.tensor(hist, dtype=torch.float64), info
 
     def _store(self, st, hist, info, active, sx, sy, m: Moments, total: Moments) -> None:
         """Map the standardised solution back to the caller's units, zeros for constant columns."""
-        mz, mx, vz, vx, b, psz, psx, psy = st[:8]
         d = total.n_features
         kw = {"dtype": torch.float64, "device": total.xtx.device}
         bayes = self._bayes
-        k = info["k"]
+        M, _, _, b, P, psy = st
+        mz, mx, psz, psx, b, k = (
+            torch.as_tensor(v, **kw) for v in (M[0], M[1], P[0], P[1], b, info["k"])
+        )
+        coef = torch.as_tensor(_coef(st, bayes), **kw)
+        psy = torch.tensor(psy, **kw)
+        hist = hist.to(total.xtx.device)
 
         def full(v, fill=0.0):
             out = torch.full((d,), fill, **kw)
             out[active] = v
             return out
 
-        self.coef_ = full(_coef(st, bayes) * sy / sx)
+        self.coef_ = full(coef * sy / sx)
         self.coef_noisy_ = full(k * sy / sx)
         self.noise_x_ = full(psx * sx * sx)
         self.noise_z_ = full(psz * sy * sy)
@@ -345,6 +358,14 @@ class BayesianJFA(_JFABase):
             each costs one E-step). Convergence along the unidentified direction of eq. (4)
             is slow, hence the large default; check ``stop_reason_``.
         tol: stop when the lower bound changes by at most ``tol * max(|L|, N)`` in an iteration.
+            Keep it tiny: the bound crawls along plateaus before the pruning of redundant inputs
+            moves on. Measured on the paper's protocol (10 relevant, 22 redundant, 45
+            irrelevant inputs, N = 500,000, input noise given): the relative change per
+            iteration is 2e-7 after 100 iterations, where the held-out nMSE of ``coef_`` is 40,
+            and 1e-9 after 10,000, where it is 0.033 (0.029 after 20,000). Without
+            ``input_noise`` the noisy-input predictor settles (held-out nMSE 0.3555 after 5,000
+            iterations, 0.3552 after 20,000) but ``coef_`` does not (nMSE 1.1 to 1.7): eq. (4)
+            is not identified there, and no stopping rule can make it settle.
         coef_tol: stop when ``||delta coef_|| <= coef_tol ||coef_||`` (standardised units).
         a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (the note: 1e-8).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
