@@ -1,0 +1,550 @@
+"""The one flow of identification: logs -> regressor -> `Moments` -> estimator -> projection.
+
+`identify` takes a `RigidBodyModel` and one or more joint logs (``.npz`` files, `SimulatedLog` s
+or arrays), streams the logs ``chunk_size`` samples at a time through the batched regressor into
+`Moments`, fits an estimator (Bayesian JFA by default) on the moments, projects the estimate
+onto physically consistent parameters and returns an `IdentificationResult`, whose
+`IdentificationResult.inverse_dynamics` is the identified model as an ``nn.Module``.
+
+Memory. The regression matrix (``n_samples * n_dof`` rows of ``n_params`` columns: 4.4 GB for
+500,000 samples of a 10-DoF arm) is never formed. ``.npz`` files are read member by member,
+``chunk_size`` rows at a time, straight from the zip archive (compressed or not), so the peak
+memory is ``O(chunk_size * n_dof * n_params + n_params^2)`` whatever the length of the logs
+(about 36 MB of regressor rows for the default 4096 samples of a 10-DoF arm). In-memory logs are
+sliced the same way (``np.load(path, mmap_mode="r")`` arrays of ``.npy`` files stay on disk).
+
+Several processes. With ``distributed=True`` (``torch.distributed`` initialised, e.g. by
+``torchrun``, by Lightning or by `torchjfa.distributed.process_group`), each process reduces its
+contiguous share of the samples of all logs to `Moments` and one all-reduce sums them; every
+process then fits the same estimator on the same statistics. See `torchjfa.distributed`.
+
+Use `stream_moments` alone to fit several estimators on the same data; use the pieces
+(`RigidBodyModel.moments`, the estimators, `torchjfa.physical.project`) directly for anything
+this flow does not cover.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ._progress import progress_bar
+from ._validation import as_tensor, check_finite
+from .distributed import all_reduce_moments, rank_and_world_size, shard_range
+from .dynamics import InverseDynamics, RigidBodyModel
+from .estimators import BayesianJFA, LinearEstimator
+from .physical import ProjectionResult
+from .physical import project as _project
+from .stats import Moments
+
+__all__ = ["IdentificationResult", "identify", "log_length", "stream_moments"]
+
+_KEYS = ("q", "qd", "qdd", "tau")
+_RESERVED = ("layout", "moments", "metric", "input_noise", "parametrization", "theta_hat")
+
+
+# ---------------------------------------------------------------------------------- sources
+class _ArraySource:
+    """A log held in memory (or memory-mapped): arrays sliced on demand."""
+
+    def __init__(self, obj, name: str) -> None:
+        get = obj.__getitem__ if isinstance(obj, Mapping) else lambda k: getattr(obj, k)
+        self.name = name
+        self.arrays = {}
+        for k in _KEYS:
+            try:
+                v = get(k)
+            except (KeyError, AttributeError):
+                raise ValueError(
+                    f"{name} has no {k!r}; a log needs q, qd, qdd and tau (n_samples, n_dof) "
+                    "(differentiate q or qd first, e.g. with torchjfa.data.differentiate)"
+                ) from None
+            if not isinstance(v, torch.Tensor | np.ndarray):
+                v = np.asarray(v, dtype=np.float64)
+            self.arrays[k] = v
+        shape = tuple(self.arrays["q"].shape)
+        for k, v in self.arrays.items():
+            if tuple(v.shape) != shape or len(shape) != 2:
+                raise ValueError(
+                    f"{name}: q, qd, qdd and tau must all have shape (n_samples, n_dof); "
+                    f"got {k} {tuple(v.shape)} and q {shape}"
+                )
+        self.shape = shape
+        names = None
+        try:
+            names = get("joint_names")
+        except (KeyError, AttributeError):
+            pass
+        self.joint_names = None if names is None else tuple(str(s) for s in np.asarray(names))
+
+    def read(self, segments) -> Iterator[tuple]:
+        for a, b, fold in segments:
+            out = []
+            for k in _KEYS:
+                v = self.arrays[k][a:b]
+                if isinstance(v, torch.Tensor):
+                    out.append(v.to(torch.float64))
+                else:  # copy: memory maps and read-only arrays become ordinary tensors
+                    out.append(torch.from_numpy(np.array(v, dtype=np.float64, copy=True)))
+            yield (a, b, fold), out
+
+
+class _NpzSource:
+    """An ``.npz`` log read lazily, ``[a, b)`` row ranges straight from the zip members."""
+
+    def __init__(self, path) -> None:
+        self.name = os.fspath(path)
+        if not os.path.isfile(self.name):
+            raise FileNotFoundError(f"no such log file: {self.name!r}")
+        if not zipfile.is_zipfile(self.name):
+            raise ValueError(f"{self.name!r} is not an .npz file (numpy.savez/savez_compressed)")
+        self.header = {}
+        with zipfile.ZipFile(self.name) as zf:
+            members = set(zf.namelist())
+            missing = [k for k in _KEYS if f"{k}.npy" not in members]
+            if missing:
+                raise ValueError(
+                    f"{self.name!r} has no array(s) {missing}; a log needs q, qd, qdd and tau "
+                    "(n_samples, n_dof) (differentiate first, e.g. torchjfa.data.differentiate)"
+                )
+            for k in _KEYS:
+                with zf.open(f"{k}.npy") as fh:
+                    self.header[k] = _read_header(fh)
+            self.joint_names = None
+            if "joint_names.npy" in members:
+                with zf.open("joint_names.npy") as fh:
+                    names = np.lib.format.read_array(fh, allow_pickle=False)
+                self.joint_names = tuple(str(s) for s in names.reshape(-1))
+        shapes = {k: h[0] for k, h in self.header.items()}
+        shape = shapes["q"]
+        if len(shape) != 2 or any(s != shape for s in shapes.values()):
+            raise ValueError(
+                f"{self.name!r}: q, qd, qdd and tau must all have shape (n_samples, n_dof); "
+                f"got {shapes}"
+            )
+        for k, (_, dtype, _, _) in self.header.items():
+            if dtype.kind not in "fiu":
+                raise ValueError(f"{self.name!r}: {k} has dtype {dtype}, expected floats")
+        self.shape = shape
+
+    def read(self, segments) -> Iterator[tuple]:
+        with zipfile.ZipFile(self.name) as zf:
+            handles, whole = {}, {}
+            try:
+                for k in _KEYS:
+                    _, dtype, fortran, offset = self.header[k]
+                    if fortran or offset is None:  # rows are not contiguous: load the member
+                        with zf.open(f"{k}.npy") as fh:
+                            whole[k] = np.lib.format.read_array(fh, allow_pickle=False)
+                    else:
+                        handles[k] = zf.open(f"{k}.npy")
+                for a, b, fold in segments:
+                    out = []
+                    for k in _KEYS:
+                        if k in whole:
+                            rows = np.array(whole[k][a:b], dtype=np.float64)
+                        else:
+                            rows = self._rows(handles[k], k, a, b)
+                        out.append(torch.from_numpy(rows))
+                    yield (a, b, fold), out
+            finally:
+                for fh in handles.values():
+                    fh.close()
+
+    def _rows(self, fh, key: str, a: int, b: int) -> np.ndarray:
+        shape, dtype, _, offset = self.header[key]
+        row = shape[1] * dtype.itemsize
+        start = offset + a * row
+        if fh.tell() != start:
+            fh.seek(start)  # forward seeks in a compressed member decompress and skip
+        data = fh.read((b - a) * row)
+        if len(data) != (b - a) * row:
+            raise ValueError(f"{self.name!r}: {key} ends before row {b}; the file is truncated")
+        return np.frombuffer(data, dtype=dtype).reshape(b - a, shape[1]).astype(np.float64)
+
+
+def _read_header(fh) -> tuple:
+    """``(shape, dtype, fortran_order, data_offset)`` of an ``.npy`` stream (offset None if
+    the header version is not one this reader knows; the member is then loaded whole)."""
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+    else:
+        return (), np.dtype(np.float64), True, None
+    return tuple(shape), np.dtype(dtype), bool(fortran), fh.tell()
+
+
+def _open(log, index: int):
+    if isinstance(log, str | os.PathLike):
+        return _NpzSource(log)
+    if isinstance(log, Mapping) or all(hasattr(log, k) for k in _KEYS):
+        return _ArraySource(log, f"log {index} ({type(log).__name__})")
+    raise TypeError(
+        f"log {index} is a {type(log).__name__}; expected an .npz path, a SimulatedLog, a mapping "
+        "or an object with q, qd, qdd and tau arrays (n_samples, n_dof)"
+    )
+
+
+def _as_sources(model: RigidBodyModel, logs) -> list:
+    items = [logs] if isinstance(logs, str | os.PathLike | Mapping) or hasattr(logs, "q") else logs
+    if not isinstance(items, Sequence) or isinstance(items, str):
+        raise TypeError(f"logs must be a log or a list of logs, got {type(logs).__name__}")
+    if len(items) == 0:
+        raise ValueError("no logs given")
+    sources = [_open(log, i) for i, log in enumerate(items)]
+    for src in sources:
+        src.perm = _permutation(model, src)
+    return sources
+
+
+def _permutation(model: RigidBodyModel, src) -> list[int] | None:
+    """Column order that puts the log's joints in the model's order (None: already so)."""
+    n_dof = src.shape[1]
+    if src.joint_names is None:
+        if n_dof != model.n_dof:
+            raise ValueError(
+                f"{src.name} has {n_dof} joint columns, the model has {model.n_dof} joints "
+                f"{model.joint_names}"
+            )
+        return None
+    names = src.joint_names
+    if len(names) != n_dof or sorted(names) != sorted(model.joint_names):
+        raise ValueError(
+            f"{src.name} logs the joints {names}, the model has {model.joint_names}; they must "
+            "be the same joints (in any order)"
+        )
+    perm = [names.index(j) for j in model.joint_names]
+    return None if perm == list(range(n_dof)) else perm
+
+
+def log_length(log) -> int:
+    """Number of samples of a log (an ``.npz`` path is not loaded: only its header is read)."""
+    return _open(log, 0).shape[0]
+
+
+# ---------------------------------------------------------------------------------- moments
+def _plan(lengths: list[int], n_folds: int, rank: int, world: int, chunk: int) -> list[list]:
+    """Per source, the ``(start, stop, fold)`` segments this process reads.
+
+    Samples are numbered across the logs in order; this process takes the contiguous global
+    range `shard_range` gives it; fold k holds global samples ``[round(k T / K),
+    round((k + 1) T / K))`` (as `torchjfa.kfold_moments`); no segment crosses a fold boundary
+    or exceeds ``chunk`` samples.
+    """
+    total = sum(lengths)
+    lo, hi = shard_range(total, rank, world)
+    bounds = [round(k * total / n_folds) for k in range(n_folds + 1)]
+    plan, offset = [], 0
+    for n in lengths:
+        segs = []
+        for k in range(n_folds):
+            a = max(lo, bounds[k], offset)
+            b = min(hi, bounds[k + 1], offset + n)
+            for s in range(a, b, chunk):
+                segs.append((s - offset, min(b, s + chunk) - offset, k))
+        plan.append(segs)
+        offset += n
+    return plan
+
+
+def stream_moments(
+    model: RigidBodyModel,
+    logs,
+    *,
+    chunk_size: int = 4096,
+    n_folds: int | None = None,
+    distributed: bool = False,
+    group=None,
+    device: torch.device | str | None = None,
+    progress: bool = False,
+) -> Moments | list[Moments]:
+    """`Moments` of ``tau ~ Y(q, qd, qdd) theta`` over all samples of the logs, streamed.
+
+    Args:
+        model: the robot.
+        logs: one log or a list of logs. A log is a path to an ``.npz`` file with arrays
+            ``q, qd, qdd, tau`` of shape ``(n_samples, n_dof)`` (rad, rad/s, rad/s^2, N m; the
+            `torchjfa.sim.SimulatedLog` format, compressed or not; an optional ``joint_names``
+            array maps the columns onto the model's joints), a `SimulatedLog`, a mapping of
+            those arrays, or any object with those attributes (numpy arrays, memory maps or
+            tensors).
+        chunk_size: samples per chunk; memory is about ``chunk_size * n_dof * n_params * 8``
+            bytes of regressor rows (twice that while it is formed).
+        n_folds: if given, return the `Moments` of ``n_folds`` contiguous folds of the
+            samples, numbered across the logs in order (for estimators that choose a
+            hyper-parameter by cross-validation).
+        distributed: split the samples between the processes of ``torch.distributed``
+            (initialised before the call) and all-reduce the result. Every process must make
+            the same call with the same logs.
+        group: the process group (default: the default group).
+        device: where the regressor and the moments are computed (default CPU).
+        progress: show a progress bar (in every process).
+
+    Returns:
+        One `Moments` with ``n_features = model.n_params`` and one row per sample and joint,
+        or a list of ``n_folds`` of them (their sum is the whole).
+
+    Raises:
+        TypeError: on an unknown kind of log.
+        ValueError: on logs with other joints than the model, mismatched shapes, NaN or
+            infinite values (with the file and sample range), or bad arguments.
+        FileNotFoundError: if a log file does not exist.
+    """
+    if not isinstance(model, RigidBodyModel):
+        raise TypeError(f"model must be a torchjfa.dynamics.RigidBodyModel, got {type(model)}")
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be a positive int, got {chunk_size!r}")
+    folds = 1 if n_folds is None else n_folds
+    if isinstance(folds, bool) or not isinstance(folds, int) or folds < 1:
+        raise ValueError(f"n_folds must be a positive int or None, got {n_folds!r}")
+    sources = _as_sources(model, logs)
+    lengths = [src.shape[0] for src in sources]
+    if folds > sum(lengths):
+        raise ValueError(f"n_folds={folds} is more than the {sum(lengths)} samples of the logs")
+    rank, world = rank_and_world_size(group) if distributed else (0, 1)
+    if distributed and world == 1 and not _dist_initialized():
+        raise ValueError(
+            "distributed=True needs an initialised torch.distributed process group (torchrun, "
+            "Lightning, or torchjfa.distributed.process_group)"
+        )
+    device = torch.device("cpu") if device is None else torch.device(device)
+    plan = _plan(lengths, folds, rank, world, chunk_size)
+    p = model.n_params
+    moments = [Moments.zeros(p, device=device) for _ in range(folds)]
+    todo = sum(b - a for segs in plan for a, b, _ in segs)
+    bar = progress_bar(total=todo, desc="moments", enabled=progress, unit="sample")
+    with bar, torch.no_grad():
+        for src, segs in zip(sources, plan, strict=True):
+            if not segs:
+                continue
+            for (a, b, k), arrays in src.read(segs):
+                q, qd, qdd, tau = (
+                    (v if src.perm is None else v[:, src.perm]).to(device) for v in arrays
+                )
+                try:
+                    Y = model.regressor(q, qd, qdd)  # (b - a, n_dof, p)
+                    check_finite(tau, "tau")
+                except ValueError as err:
+                    raise ValueError(f"{src.name}, samples [{a}, {b}): {err}") from err
+                moments[k].update(Y.reshape(-1, p), tau.reshape(-1))
+                bar.update(b - a)
+    if distributed:
+        moments = all_reduce_moments(moments, group)
+    return moments[0] if n_folds is None else moments
+
+
+def _dist_initialized() -> bool:
+    import torch.distributed as dist
+
+    return dist.is_available() and dist.is_initialized()
+
+
+# ---------------------------------------------------------------------------------- identify
+@dataclass
+class IdentificationResult:
+    """What `identify` returns.
+
+    Attributes:
+        model: the `RigidBodyModel`.
+        theta: ``(n_params,)`` float64, the identified parameters: projected (physically
+            consistent) when a projection was made, else ``theta_hat``.
+        theta_hat: ``(n_params,)`` the estimator's unconstrained ``coef_``.
+        estimator: the fitted estimator.
+        moments: the `Moments` of all the data (``n_features = n_params``).
+        folds: the fold `Moments` the estimator saw, or None.
+        projection: the `torchjfa.physical.ProjectionResult`, or None.
+        input_noise: ``(n_params,)`` the input-noise variances in the projection's metric
+            ``X^T X + N diag(input_noise)`` (None: ``X^T X`` alone).
+        world_size: processes that shared the pass over the data.
+    """
+
+    model: RigidBodyModel
+    theta: torch.Tensor
+    theta_hat: torch.Tensor
+    estimator: LinearEstimator
+    moments: Moments = field(repr=False)
+    folds: list[Moments] | None = field(repr=False)
+    projection: ProjectionResult | None = field(repr=False)
+    input_noise: torch.Tensor | None = field(repr=False)
+    world_size: int = 1
+
+    def __repr__(self) -> str:
+        return (
+            f"IdentificationResult(n_samples={self.n_samples}, n_params={self.model.n_params}, "
+            f"estimator={type(self.estimator).__name__}, projected={self.projection is not None}, "
+            f"rmse={self.rmse():.4g}, world_size={self.world_size})"
+        )
+
+    @property
+    def n_samples(self) -> int:
+        """Samples used (rows of the regression divided by the number of joints)."""
+        return self.moments.n_rows // self.model.n_dof
+
+    def rmse(self, theta=None) -> float:
+        """Training RMS torque error ``sqrt(||tau - Y theta||^2 / (n_samples n_dof))`` from the
+        moments (N m), for ``theta`` (default `theta`)."""
+        theta = self.theta if theta is None else theta
+        rss = self.moments.rss(theta)
+        return float(torch.sqrt(rss.clamp_min(0.0) / self.moments.n))
+
+    def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
+        """The identified model as an `InverseDynamics` ``nn.Module``.
+
+        Args:
+            projected: use `theta` (default) or the unconstrained ``theta_hat``.
+            trainable: make theta a trainable parameter (e.g. to learn a residual on top).
+        """
+        theta = self.theta if projected else self.theta_hat
+        return InverseDynamics(self.model, theta.detach().cpu(), trainable=trainable)
+
+
+def _noise_vector(input_noise, d: int) -> torch.Tensor | None:
+    if input_noise is None:
+        return None
+    v = as_tensor(input_noise, name="input_noise", dtype=torch.float64)
+    if v.ndim == 0:
+        v = v.expand(d).clone()
+    if tuple(v.shape) != (d,):
+        raise ValueError(
+            f"input_noise must be a scalar or have shape ({d},) (one variance per regressor "
+            f"column), got {tuple(v.shape)}"
+        )
+    check_finite(v, "input_noise")
+    if bool((v < 0).any()):
+        raise ValueError("input_noise holds variances and must be non-negative")
+    return v
+
+
+def identify(
+    model: RigidBodyModel,
+    logs,
+    *,
+    estimator: LinearEstimator | None = None,
+    project: bool = True,
+    parametrization: str = "virtual",
+    input_noise=None,
+    projection_options: Mapping | None = None,
+    chunk_size: int = 4096,
+    distributed: bool = False,
+    group=None,
+    device: torch.device | str | None = None,
+    progress: bool = False,
+) -> IdentificationResult:
+    """Identify a robot's parameters from joint logs in one streaming pass.
+
+    logs -> regressor rows (``chunk_size`` samples at a time) -> `Moments` -> ``estimator``
+    -> projection onto physically consistent parameters (the seed paper's eq. 8) ->
+    `IdentificationResult`. The regression matrix is never formed (see the module docstring);
+    the result equals fitting the same estimator on ``Moments.from_data`` of the whole
+    regressor, up to rounding.
+
+    Args:
+        model: the robot (`RigidBodyModel`).
+        logs: one log or a list of logs: ``.npz`` paths, `SimulatedLog` s, mappings or objects
+            with ``q, qd, qdd, tau`` ``(n_samples, n_dof)`` arrays (see `stream_moments`).
+        estimator: an unfitted estimator with ``fit_intercept=False`` (the torques have no
+            intercept: use friction ``"offset"`` terms for one). Default
+            ``BayesianJFA(input_noise=input_noise, fit_intercept=False)``. It is fitted in
+            place. Estimators that choose a hyper-parameter by cross-validation get
+            ``estimator.cv`` contiguous folds of the samples.
+        project: project the estimate onto physically consistent parameters.
+        parametrization: ``"virtual"`` (eq. 5) or ``"log-cholesky"`` (also the triangle
+            inequalities), see `torchjfa.physical.project`.
+        input_noise: per-column input-noise variance of the regressor, scalar or
+            ``(n_params,)`` (e.g. `torchjfa.sim.regressor_noise` ``.input_noise``). Used by the
+            default estimator and in the projection's metric ``X^T X + N diag(input_noise)``;
+            when None, the metric takes the estimator's ``noise_x_`` if it has one (Bayesian
+            JFA's estimate), else ``X^T X`` alone.
+        projection_options: more keyword arguments of `torchjfa.physical.project` (``prior``,
+            ``prior_weight``, ``ridge``, ``max_iter``, ``tol``, ``warm_start``).
+        chunk_size: samples per chunk (memory ``O(chunk_size * n_dof * n_params)``).
+        distributed: share the pass between the processes of an initialised
+            ``torch.distributed`` group; every process gets the same result.
+        group: the process group (default: the default group).
+        device: where the regressor, moments and fits are computed (default CPU).
+        progress: show a progress bar over the samples.
+
+    Returns:
+        An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
+        ``.projection``, ``.inverse_dynamics()``).
+
+    Raises:
+        TypeError: on a model that is not a `RigidBodyModel`, an estimator that is not a
+            `LinearEstimator`, or an unknown kind of log.
+        ValueError: on an estimator with ``fit_intercept=True``, logs that do not match the
+            model, NaN in the logs, a bad ``input_noise`` or bad options.
+
+    Example:
+        >>> model = RigidBodyModel.from_mjcf(torchjfa.sim.model_path("head"))  # doctest: +SKIP
+        >>> result = identify(model, ["run1.npz", "run2.npz"], progress=True)  # doctest: +SKIP
+        >>> tau = result.inverse_dynamics()(q, qd, qdd)                       # doctest: +SKIP
+    """
+    if not isinstance(model, RigidBodyModel):
+        raise TypeError(f"model must be a torchjfa.dynamics.RigidBodyModel, got {type(model)}")
+    d = model.n_params
+    noise = _noise_vector(input_noise, d)
+    if estimator is None:
+        estimator = BayesianJFA(input_noise=noise, fit_intercept=False)
+    if not isinstance(estimator, LinearEstimator):
+        raise TypeError(
+            f"estimator must be a torchjfa.estimators estimator, got {type(estimator).__name__}"
+        )
+    if estimator.fit_intercept:
+        raise ValueError(
+            f"{type(estimator).__name__}(fit_intercept=True) would fit a torque offset that "
+            "inverse dynamics cannot use; pass fit_intercept=False (add friction 'offset' "
+            "terms to the model for a per-joint offset)"
+        )
+    options = dict(projection_options or {})
+    bad = sorted(set(options) & set(_RESERVED))
+    if bad:
+        raise ValueError(f"projection_options may not set {bad}; identify sets them")
+    # estimators that choose a hyper-parameter by cross-validation need fold moments
+    n_folds = int(estimator.cv) if estimator._needs_folds() else None
+    stats = stream_moments(
+        model,
+        logs,
+        chunk_size=chunk_size,
+        n_folds=n_folds,
+        distributed=distributed,
+        group=group,
+        device=device,
+        progress=progress,
+    )
+    folds = stats if n_folds is not None else None
+    moments = sum(stats[1:], stats[0].copy()) if folds is not None else stats
+    estimator.fit_moments(folds if folds is not None else moments)
+    theta_hat = estimator.coef_.detach().to(torch.float64)
+    if noise is None and hasattr(estimator, "noise_x_"):
+        noise = estimator.noise_x_.detach().to(torch.float64).cpu()
+    projection = None
+    theta = theta_hat
+    if project:
+        projection = _project(
+            theta_hat,
+            layout=model,
+            moments=moments,
+            input_noise=None if noise is None else noise.to(moments.xtx.device),
+            parametrization=parametrization,
+            **options,
+        )
+        theta = projection.theta.detach().to(torch.float64)
+    _, world = rank_and_world_size(group) if distributed else (0, 1)
+    return IdentificationResult(
+        model=model,
+        theta=theta,
+        theta_hat=theta_hat,
+        estimator=estimator,
+        moments=moments,
+        folds=folds,
+        projection=projection,
+        input_noise=noise,
+        world_size=world,
+    )
