@@ -1,23 +1,26 @@
-"""Benchmark: the batched regressor against Pinocchio and MuJoCo, per sample, on the Panda.
+"""Benchmark: the batched regressor against Pinocchio and MuJoCo, per sample, on a 7-DoF arm.
 
+The robot is ``torchjfa/robots/panda_arm.urdf`` (the Panda with its finger joints fixed: 7
+revolute joints, 77 parameters with viscous friction); Pinocchio and MuJoCo load the same file.
 For each batch size, in one run on this machine:
 
-* torchjfa ``RigidBodyModel.regressor`` (float64 and float32), samples per second, best of
-  ``--repeats``; the output ``(B, 9, 99)`` is allocated by each call;
+* torchjfa ``RigidBodyModel.regressor`` (float64 and float32) with 1 and with 2 torch threads
+  (``--threads``), samples per second, best of ``--repeats``; the output ``(B, 7, 77)`` is
+  allocated by each call;
 * Pinocchio ``computeJointTorqueRegressor`` called sample by sample from Python (the
   benchmark-only extra ``pin``), both discarding each result and storing it into a preallocated
-  ``(B, 9, 90)`` array (the same job as a batched regressor);
+  ``(B, 7, 70)`` array (the same job as a batched regressor);
 * MuJoCo ``mj_inverse`` sample by sample (torques, not a regressor: a reference point).
 
 It prints the ratios torchjfa / Pinocchio and the peak resident memory, and checks first that
 Pinocchio's model is the same robot: ``Y_pin @ pi_pin`` against ``Y @ nominal_theta``.
 
-    python scripts/bench_regressor.py                 # batches 1e3, 1e4, 1e5
+    python scripts/bench_regressor.py                 # batches 1e3, 1e4, 1e5; 1 and 2 threads
     python scripts/bench_regressor.py --batches 1000 --repeats 1   # quick
-    python scripts/bench_regressor.py --threads 0     # torch's default thread count
+    python scripts/bench_regressor.py --threads 1 --robot panda    # one thread, 9-DoF Panda
 
-On a machine shared with other work, torch's multi-threaded kernels can be far slower than one
-thread (OpenMP threads wait for busy cores); the default here is one thread.
+On a machine shared with other work, torch's multi-threaded kernels can be slower than one
+thread (OpenMP threads wait for busy cores); Pinocchio and MuJoCo run on one thread.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import resource
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -33,12 +37,12 @@ import torchjfa.robots
 from torchjfa.dynamics import RigidBodyModel
 
 
-def _best(fn, repeats: int) -> float:
+def _best(fn, repeats: int, clock=time.perf_counter) -> float:
     best = float("inf")
     for _ in range(repeats):
-        t = time.perf_counter()
+        t = clock()
         fn()
-        best = min(best, time.perf_counter() - t)
+        best = min(best, clock() - t)
     return best
 
 
@@ -46,16 +50,35 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _robot_path(robot: str) -> str:
+    if robot in torchjfa.robots.available():
+        return torchjfa.robots.path(robot)
+    path = Path(torchjfa.robots.__file__).resolve().parent / f"{robot}.urdf"
+    if not path.is_file():
+        raise ValueError(f"unknown robot {robot!r}: no {path}")
+    return str(path)
+
+
 def run(
-    batches=(1_000, 10_000, 100_000), repeats: int = 3, seed: int = 0, threads: int | None = None
+    batches=(1_000, 10_000, 100_000),
+    repeats: int = 3,
+    seed: int = 0,
+    threads=(1, 2),
+    robot: str = "panda_arm",
 ):
-    """Run the benchmark and return a list of result dicts (also printed)."""
+    """Run the benchmark and return a list of result dicts (also printed).
+
+    Args:
+        batches: batch sizes.
+        repeats: timings per measurement; the best is kept.
+        seed: seed of the random states.
+        threads: torch thread counts to time the regressor with (0: torch's default).
+        robot: a URDF shipped in ``torchjfa/robots`` (``panda_arm``: 7 DoF; ``panda``: 9 DoF).
+    """
     import mujoco
     import pinocchio as pin
 
-    if threads is not None:
-        torch.set_num_threads(threads)
-    path = torchjfa.robots.path("panda")
+    path = _robot_path(robot)
     model = RigidBodyModel.from_urdf(path)
     pm = pin.buildModelFromUrdf(path)
     pd = pm.createData()
@@ -84,18 +107,37 @@ def run(
     )
     tau_me = (model.regressor(qs, qds, qdds) @ model.nominal_theta).numpy()
     diff = float(np.abs(tau_pin - tau_me).max())
+    print(f"{robot}: {n} DoF, {model.n_params} parameters, output (B, {n}, {model.n_params})")
     print(f"same robot: max |Y_pin pi_pin - Y theta| = {diff:.2e} N m over 50 random states")
-    print(f"torch threads: {torch.get_num_threads()}")
+    default_threads = torch.get_num_threads()
 
     results = []
     for B in batches:
         q, qd, qdd = (rng.standard_normal((B, n)) for _ in range(3))
         row = {"batch": B}
-        for dtype in (torch.float64, torch.float32):
-            tq, tqd, tqdd = (torch.as_tensor(v, dtype=dtype) for v in (q, qd, qdd))
-            model.regressor(tq[:10], tqd[:10], tqdd[:10])  # warm-up
-            t = _best(lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd), repeats)
-            row[f"torchjfa_{str(dtype)[6:]}"] = B / t
+        for nt in threads:
+            torch.set_num_threads(nt if nt > 0 else default_threads)
+            for dtype in (torch.float64, torch.float32):
+                tq, tqd, tqdd = (torch.as_tensor(v, dtype=dtype) for v in (q, qd, qdd))
+                model.regressor(tq[:10], tqd[:10], tqdd[:10])  # warm-up
+                t = _best(lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd), repeats)
+                row[f"torchjfa_{str(dtype)[6:]}_t{nt}"] = B / t
+                if nt == 1 and dtype == torch.float64:
+                    row["cpu_torchjfa_float64"] = B / _best(
+                        lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd),
+                        repeats,
+                        time.process_time,
+                    )
+                    reuse = torch.empty(B, n, model.n_params, dtype=dtype)
+
+                    def into(tq=tq, tqd=tqd, tqdd=tqdd, reuse=reuse):
+                        model.regressor(tq, tqd, tqdd, out=reuse)
+
+                    into()  # first touch of the reused output
+                    row["torchjfa_float64_out"] = B / _best(into, repeats)
+                    row["cpu_torchjfa_float64_out"] = B / _best(into, repeats, time.process_time)
+                    del reuse
+        torch.set_num_threads(default_threads)
 
         def pin_discard(q=q, qd=qd, qdd=qdd, B=B):
             for i in range(B):
@@ -114,22 +156,34 @@ def run(
                 mujoco.mj_inverse(mm, md)
 
         row["pinocchio"] = B / _best(pin_discard, repeats)
+        row["cpu_pinocchio"] = B / _best(pin_discard, repeats, time.process_time)
         row["pinocchio_store"] = B / _best(pin_store, repeats)
         row["mujoco_inverse"] = B / _best(mj, repeats)
         row["peak_rss_mb"] = _peak_rss_mb()
         results.append(row)
         print(
-            f"B={B:>7d}  samples/s: torchjfa f64 {row['torchjfa_float64']:>10.0f}  "
-            f"f32 {row['torchjfa_float32']:>10.0f} | pinocchio {row['pinocchio']:>9.0f} "
+            f"B={B:>7d}  samples/s: pinocchio {row['pinocchio']:>9.0f} "
             f"(storing {row['pinocchio_store']:>9.0f}) | mj_inverse {row['mujoco_inverse']:>9.0f}"
+            f" | peak RSS so far {row['peak_rss_mb']:.0f} MB"
         )
-        print(
-            f"           ratios: f64/pin {row['torchjfa_float64'] / row['pinocchio']:.2f}  "
-            f"f64/pin_store {row['torchjfa_float64'] / row['pinocchio_store']:.2f}  "
-            f"f32/pin {row['torchjfa_float32'] / row['pinocchio']:.2f}  "
-            f"f64/mj_inverse {row['torchjfa_float64'] / row['mujoco_inverse']:.2f}  "
-            f"| peak RSS so far {row['peak_rss_mb']:.0f} MB"
-        )
+        if "torchjfa_float64_out" in row:
+            pin_wall, pin_cpu = row["pinocchio"], row["cpu_pinocchio"]
+            print(
+                f"  torchjfa 1 thread f64 into a reused out=: {row['torchjfa_float64_out']:>10.0f}"
+                f" (f64/pin {row['torchjfa_float64_out'] / pin_wall:.2f}) | CPU-time ratios "
+                f"(process_time, robust to other load): f64/pin "
+                f"{row['cpu_torchjfa_float64'] / pin_cpu:.2f}, out= f64/pin "
+                f"{row['cpu_torchjfa_float64_out'] / pin_cpu:.2f} (pinocchio {pin_cpu:.0f}/s CPU)"
+            )
+        for nt in threads:
+            f64, f32 = row[f"torchjfa_float64_t{nt}"], row[f"torchjfa_float32_t{nt}"]
+            print(
+                f"  torchjfa {nt or default_threads} thread(s): f64 {f64:>10.0f}  f32 {f32:>10.0f}"
+                f" | ratios f64/pin {f64 / row['pinocchio']:.2f}  "
+                f"f64/pin_store {f64 / row['pinocchio_store']:.2f}  "
+                f"f32/pin {f32 / row['pinocchio']:.2f}  "
+                f"f64/mj_inverse {f64 / row['mujoco_inverse']:.2f}"
+            )
     return results
 
 
@@ -141,10 +195,17 @@ if __name__ == "__main__":
     parser.add_argument(
         "--threads",
         type=int,
-        default=1,
-        help="torch threads; 1 (default) compares like with like against the single-threaded "
-        "Pinocchio and MuJoCo loops; 0 keeps torch's default",
+        nargs="+",
+        default=[1, 2],
+        help="torch thread counts to time the regressor with (default 1 and 2; 0: torch's "
+        "default); Pinocchio and MuJoCo loops run on one thread",
     )
+    parser.add_argument("--robot", default="panda_arm", help="panda_arm (7 DoF) or panda (9 DoF)")
     args = parser.parse_args()
-    threads = None if args.threads == 0 else args.threads
-    run(tuple(args.batches), repeats=args.repeats, seed=args.seed, threads=threads)
+    run(
+        tuple(args.batches),
+        repeats=args.repeats,
+        seed=args.seed,
+        threads=tuple(args.threads),
+        robot=args.robot,
+    )

@@ -186,3 +186,35 @@ def test_coulomb_and_offset_columns():
     plain = RigidBodyModel.from_urdf(SMALL_URDF).regressor(q, qd, qdd)
     inert = model.layout.split(Y)[0]
     torch.testing.assert_close(inert, plain.reshape(3, model.n_dof, model.n_dof, 11)[..., :10])
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_autograd_path_equals_fast_path(name):
+    # inputs that require grad take the differentiable path; the others the buffered fast path
+    model = _model(name)
+    q, qd, qdd = random_state(model.n_dof, (6,), seed=11)
+    fast = model.regressor(q, qd, qdd)
+    slow = model.regressor(q.clone().requires_grad_(True), qd, qdd)
+    assert slow.requires_grad and not fast.requires_grad
+    torch.testing.assert_close(slow.detach(), fast, rtol=1e-12, atol=1e-12)
+
+
+def test_out_buffer_is_filled_and_bad_buffers_raise():
+    model = _model("branched_tree")
+    q, qd, qdd = random_state(model.n_dof, (4, 3), seed=12)
+    expected = model.regressor(q, qd, qdd)
+    out = torch.full_like(expected, float("nan"))
+    result = model.regressor(q, qd, qdd, out=out)
+    assert result.data_ptr() == out.data_ptr()
+    torch.testing.assert_close(out, expected, rtol=0, atol=0)
+    with pytest.raises(ValueError):
+        model.regressor(q, qd, qdd, out=torch.empty(3, *expected.shape[1:], dtype=expected.dtype))
+    with pytest.raises((ValueError, TypeError)):
+        model.regressor(q, qd, qdd, out=torch.empty_like(expected, dtype=torch.float32))
+    with pytest.raises(ValueError):
+        model.regressor(
+            q,
+            qd,
+            qdd,
+            out=torch.empty_like(expected).transpose(-1, -2).contiguous().transpose(-1, -2),
+        )

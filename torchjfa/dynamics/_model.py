@@ -19,12 +19,14 @@ from .._progress import progress_bar
 from .._validation import as_tensor, check_finite
 from ..stats import Moments
 from ._parameters import ParameterLayout, friction_kinds, inertial_from_vector, inertial_vector
-from ._rnea import TreeConstants, regressor_into
+from ._rnea import TreeConstants, regressor_fast, regressor_into
 from ._tree import KinematicTree, read_description, tree_from_mjcf, tree_from_urdf
 
 __all__ = ["RigidBodyModel", "BodyInertial"]
 
 _DEFAULT_CHUNK = 1024
+_NUMPY_ALLOC_MIN = 1 << 20  # elements
+_NP_DTYPES = {torch.float64: np.float64, torch.float32: np.float32}
 
 
 @dataclass(frozen=True)
@@ -264,7 +266,9 @@ class RigidBodyModel:
                 check_finite(v.detach(), n)
         return vals
 
-    def regressor(self, q, qd, qdd, *, chunk_size: int | None = None) -> torch.Tensor:
+    def regressor(
+        self, q, qd, qdd, *, chunk_size: int | None = None, out: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """The dynamics regressor: ``tau = Y(q, qd, qdd) @ theta``.
 
         Args:
@@ -273,13 +277,18 @@ class RigidBodyModel:
             qdd: ``(*batch, n_dof)`` joint accelerations.
             chunk_size: samples computed at a time (memory/speed trade-off); None picks one.
                 Ignored when an input requires grad (one pass, so autograd sees one graph).
+            out: optional contiguous ``(*batch, n_dof, n_params)`` tensor of the inputs' dtype
+                and device to write into (no allocation: reusing one output across calls saves
+                the first-touch cost of fresh memory); not with inputs that require grad.
 
         Returns:
             ``(*batch, n_dof, n_params)`` in the inputs' dtype and device (float64 for
-            non-tensor input); differentiable with respect to q, qd and qdd.
+            non-tensor input), ``out`` when given; differentiable with respect to q, qd and
+            qdd.
 
         Raises:
-            ValueError: on wrong shapes, mismatched devices, NaN or infinite entries.
+            ValueError: on wrong shapes, mismatched devices, NaN or infinite entries, or an
+                ``out`` of the wrong shape, dtype or device, not contiguous, or with grad.
         """
         q, qd, qdd = self._check_state(q, qd, qdd)
         batch = q.shape[:-1]
@@ -288,19 +297,17 @@ class RigidBodyModel:
         B = q2.shape[0]
         c = self._consts(q2.dtype, q2.device)
         grad = torch.is_grad_enabled() and any(v.requires_grad for v in (q2, qd2, qdd2))
+        shape = (*batch, n, self.n_params)
+        if out is not None:
+            _check_out(out, shape, q2, grad)
         if grad:
-            out = q2.new_zeros(B, n, self.n_params)
-            regressor_into(out, q2, qd2, qdd2, c, self.friction)
-            return out.reshape(*batch, n, self.n_params)
+            Y = q2.new_zeros(B, n, self.n_params)
+            regressor_into(Y, q2, qd2, qdd2, c, self.friction)
+            return Y.reshape(shape)
         step = _DEFAULT_CHUNK if chunk_size is None else _check_chunk(chunk_size)
-        out = q2.new_empty(B, n, self.n_params)
-        with torch.no_grad():
-            for s in range(0, B, step):
-                e = min(B, s + step)
-                view = out[s:e]
-                view.zero_()
-                regressor_into(view, q2[s:e], qd2[s:e], qdd2[s:e], c, self.friction)
-        return out.reshape(*batch, n, self.n_params)
+        Y = _new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
+        regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # writes every entry
+        return Y.reshape(shape) if out is None else out
 
     def inverse_dynamics(self, q, qd, qdd, theta) -> torch.Tensor:
         """``tau = Y(q, qd, qdd) @ theta``, ``(*batch, n_dof)``; theta ``(n_params,)``."""
@@ -425,6 +432,32 @@ class RigidBodyModel:
         from ._writeback import write_mjcf
 
         write_mjcf(self, self._check_theta(theta), path)
+
+
+def _new_output(like: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """An uninitialised tensor for a regressor; large CPU ones are allocated by numpy.
+
+    numpy asks the kernel for transparent huge pages on large arrays (``madvise``); first
+    touching a 4 kB-paged output of hundreds of MB costs more than computing it.
+    """
+    numel = int(np.prod(shape))
+    if like.device.type == "cpu" and like.dtype in _NP_DTYPES and numel >= _NUMPY_ALLOC_MIN:
+        return torch.from_numpy(np.empty(shape, dtype=_NP_DTYPES[like.dtype]))
+    return like.new_empty(shape)
+
+
+def _check_out(out, shape, like: torch.Tensor, grad: bool) -> None:
+    if not isinstance(out, torch.Tensor):
+        raise TypeError(f"out must be a torch.Tensor, got {type(out).__name__}")
+    if grad or out.requires_grad:
+        raise ValueError("out= cannot be used when an input or out requires grad")
+    if tuple(out.shape) != tuple(shape) or out.dtype != like.dtype or out.device != like.device:
+        raise ValueError(
+            f"out must have shape {tuple(shape)}, dtype {like.dtype} and device {like.device}, "
+            f"got {tuple(out.shape)}, {out.dtype}, {out.device}"
+        )
+    if not out.is_contiguous():
+        raise ValueError("out must be contiguous")
 
 
 def _check_chunk(chunk_size) -> int:

@@ -14,6 +14,7 @@ __all__ = ["path", "available"]
 _HERE = Path(__file__).resolve().parent
 _FILES = {
     "panda": "panda.urdf",
+    "panda_arm": "panda_arm.urdf",
     "branched_tree": "branched_tree.xml",
 }
 
@@ -28,7 +29,8 @@ def path(name: str) -> str:
 
     Args:
         name: one of `available()`: ``"panda"`` (Franka Panda URDF, 7 revolute + 2 prismatic
-            finger joints, fixed joints to the hand) or ``"branched_tree"`` (MJCF: a torso with
+            finger joints, fixed joints to the hand), ``"panda_arm"`` (the same with the fingers
+            fixed: a 7-DoF arm) or ``"branched_tree"`` (MJCF: a torso with
             two 2-link arms, hinge and slide joints, rotated full inertias).
 
     Raises:
