@@ -20,17 +20,28 @@ import math
 import numbers
 import warnings
 
+import numpy as np
 import torch
 
 from .._progress import progress_bar
 from ..stats import Moments
 from ._cv import MomentEstimator, check_grid, check_positive_real, cv_mse, train_test_splits
-from ._linear import min_norm_solve
 
 __all__ = ["Lasso", "lasso_path"]
 
 
-def _polish(sxx: torch.Tensor, sxy: torch.Tensor, lam: torch.Tensor, coef: torch.Tensor):
+def _min_norm_solve_np(sxx: np.ndarray, sxy: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """NumPy twin of `min_norm_solve` (scaled eigen-decomposition pseudo-inverse)."""
+    scale = np.sqrt(np.clip(np.diagonal(sxx), 0, None))
+    scale = np.where(scale > 0, scale, 1.0)
+    corr = sxx / np.outer(scale, scale)
+    evals, evecs = np.linalg.eigh(0.5 * (corr + corr.T))
+    keep = evals > rcond * max(evals[-1], np.finfo(evals.dtype).tiny)
+    z = evecs[:, keep].T @ (sxy / scale)
+    return (evecs[:, keep] @ (z / evals[keep])) / scale
+
+
+def _polish(sxx: np.ndarray, sxy: np.ndarray, lam: float, coef: np.ndarray):
     """Try to finish one lasso problem exactly from the support and signs of ``coef``.
 
     On the orthant of ``coef``'s signs the objective is the smooth quadratic whose minimiser
@@ -40,38 +51,40 @@ def _polish(sxx: torch.Tensor, sxy: torch.Tensor, lam: torch.Tensor, coef: torch
     minimiser itself) has a lower objective, and is returned for coordinate descent to continue
     from (the feature-sign step of Lee et al., 2007).
 
-    Shapes: ``sxx`` ``(d, d)``, ``sxy`` ``(d,)``, ``lam`` 0-d (``n alpha``), ``coef`` ``(d,)``.
+    Shapes: ``sxx`` ``(d, d)``, ``sxy`` ``(d,)``, ``lam`` (``n alpha``), ``coef`` ``(d,)``;
+    NumPy float64 (the coordinate-descent loop runs in NumPy: its cost is per-op overhead).
 
     Returns:
         ``(point, exact)``: the new iterate (None when the support's Gram matrix is singular
         and the stationarity system has no solution) and whether it is the solution.
     """
     support = coef != 0
-    out = torch.zeros_like(coef)
-    if bool(support.any()):
-        signs = torch.sign(coef[support])
-        sub = sxx[support][:, support]
+    out = np.zeros_like(coef)
+    if support.any():
+        signs = np.sign(coef[support])
+        sub = sxx[np.ix_(support, support)]
         rhs = sxy[support] - lam * signs
-        chol, info = torch.linalg.cholesky_ex(sub)
-        if int(info) == 0:
-            sol = torch.cholesky_solve(rhs[:, None], chol)[:, 0]
-        else:  # singular, e.g. duplicated inputs: any minimiser will do if the system is consistent
-            sol = min_norm_solve(sub, rhs)[0]
-            if float((sub @ sol - rhs).abs().max()) > 1e-9 * float(rhs.abs().max() + lam):
+        try:
+            chol = np.linalg.cholesky(sub)
+            sol = np.linalg.solve(chol.T, np.linalg.solve(chol, rhs))
+        except np.linalg.LinAlgError:
+            # singular, e.g. duplicated inputs: any minimiser will do if the system is consistent
+            sol = _min_norm_solve_np(sub, rhs)
+            if np.abs(sub @ sol - rhs).max() > 1e-9 * (np.abs(rhs).max() + lam):
                 return None, False
-        flipped = torch.sign(sol) != signs
-        if bool(flipped.any()):
+        flipped = np.sign(sol) != signs
+        if flipped.any():
             cur = coef[support]
             ratio = cur[flipped] / (cur[flipped] - sol[flipped])  # in (0, 1]
-            k = int(torch.argmin(ratio))
+            k = int(np.argmin(ratio))
             point = cur + ratio[k] * (sol - cur)
-            point[torch.nonzero(flipped).flatten()[k]] = 0.0
+            point[np.flatnonzero(flipped)[k]] = 0.0
             out[support] = point
             return out, False
         out[support] = sol
     grad = sxy - sxx @ out
-    slack = lam * (1 + 1e-11) + 1e-13 * sxy.abs().max()
-    return out, not bool((grad[~support].abs() > slack).any())
+    slack = lam * (1 + 1e-11) + 1e-13 * np.abs(sxy).max()
+    return out, not bool((np.abs(grad[~support]) > slack).any())
 
 
 def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
@@ -86,36 +99,54 @@ def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
 
     Returns:
         ``(n_sweeps, converged)``.
+
+    The sweeps run on float64 NumPy copies: a sweep is ``d`` sequential updates of ``B``
+    numbers each, whose cost is the per-operation overhead (about 1 us in NumPy against several
+    in torch), not arithmetic.
     """
-    n_batch, d = sxy.shape
-    diag = torch.diagonal(sxx, dim1=1, dim2=2)  # (B, d)
+    S = sxx.detach().cpu().double().numpy()
+    s = sxy.detach().cpu().double().numpy()
+    lam_np = np.broadcast_to(lam.detach().cpu().double().numpy(), (s.shape[0],)).copy()
+    b = coef.detach().cpu().double().numpy().copy()
+    n_batch, d = s.shape
+    diag = np.diagonal(S, axis1=1, axis2=2).copy()  # (B, d)
     usable = diag > 0
-    safe = torch.where(usable, diag, torch.ones_like(diag))
-    grad = sxy - torch.einsum("bij,bj->bi", sxx, coef)  # (B, d)
-    done = torch.zeros(n_batch, dtype=torch.bool, device=sxy.device)
+    safe = np.where(usable, diag, 1.0)
+    grad = s - np.einsum("bij,bj->bi", S, b)  # (B, d)
+    done = np.zeros(n_batch, dtype=bool)
+    tried: list[bytes | None] = [None] * n_batch
+    cols = np.ascontiguousarray(np.swapaxes(S, 1, 2))  # cols[:, j] = S[:, :, j]
+    result = (max_iter, False)
     for sweep in range(1, max_iter + 1):
-        step = torch.zeros(n_batch, dtype=sxy.dtype, device=sxy.device)
+        step = np.zeros(n_batch)
         for j in range(d):
-            old = coef[:, j]
+            old = b[:, j].copy()
             rho = grad[:, j] + diag[:, j] * old
-            new = torch.sign(rho) * (rho.abs() - lam).clamp_min(0) / safe[:, j]
-            new = torch.where(usable[:, j] & ~done, new, torch.where(done, old, 0.0))
+            new = np.sign(rho) * np.clip(np.abs(rho) - lam_np, 0, None) / safe[:, j]
+            new = np.where(usable[:, j] & ~done, new, np.where(done, old, 0.0))
             delta = new - old
-            grad -= delta[:, None] * sxx[:, :, j]
-            coef[:, j] = new
-            step = torch.maximum(step, delta.abs())
-        scale = coef.abs().amax(1).clamp_min(torch.finfo(coef.dtype).tiny)
+            grad -= delta[:, None] * cols[:, j]
+            b[:, j] = new
+            np.maximum(step, np.abs(delta), out=step)
+        scale = np.maximum(np.abs(b).max(1), np.finfo(np.float64).tiny)
         stalled = step <= tol * scale
-        for i in torch.nonzero(~done).flatten().tolist():
-            point, exact = _polish(sxx[i], sxy[i], lam[i], coef[i])
+        for i in np.flatnonzero(~done):
+            # the exact step depends only on the support and signs: retry it when they change
+            signature = np.sign(b[i]).astype(np.int8).tobytes()
+            if signature == tried[i]:
+                continue
+            tried[i] = signature
+            point, exact = _polish(S[i], s[i], float(lam_np[i]), b[i])
             if point is not None:
-                coef[i] = point
-                grad[i] = sxy[i] - sxx[i] @ point
+                b[i] = point
+                grad[i] = s[i] - S[i] @ point
                 done[i] = exact
         done |= stalled
-        if bool(done.all()):
-            return sweep, True
-    return max_iter, False
+        if done.all():
+            result = (sweep, True)
+            break
+    coef.copy_(torch.from_numpy(b).to(coef))
+    return result
 
 
 def lasso_path(
