@@ -2,6 +2,9 @@
 
     python scripts/reproduce_fig2.py                 # the full protocol: 4 scenarios x 2 SNRs x 10 trials
     python scripts/reproduce_fig2.py --quick         # a smoke run (seconds)
+    python scripts/reproduce_fig2.py --snrs 2 --out results/fig2_snr2   # one SNR per process,
+    python scripts/reproduce_fig2.py --snrs 5 --out results/fig2_snr5   # run side by side, then
+    python scripts/reproduce_fig2.py --merge results/fig2_snr*/fig2.json --out results/fig2
 
 Prints the table (method x scenario x input SNR, clean and noisy test, mean and spread of nMSE,
 fit time), the improvement of the best Bayesian method over the best other one, and writes
@@ -42,31 +45,9 @@ def format_table(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run(
-    *,
-    quick: bool = False,
-    n_trials: int = 10,
-    n_train: int = 1000,
-    seed: int = 0,
-    out: Path = Path("results/fig2"),
-    progress: bool = True,
-) -> dict:
-    """Run the protocol (or its smoke version), print and write the results."""
-    if quick:
-        kwargs = dict(
-            scenarios=((0, 20), (20, 0)),
-            input_snrs=(2.0,),
-            n_trials=2,
-            n_train=200,
-            n_test=200,
-            methods=fig2.default_methods(bayes_max_iter=300),
-        )
-        kwargs["scenarios"] = tuple((r, u) for r, u in kwargs["scenarios"])
-    else:
-        kwargs = dict(n_trials=n_trials, n_train=n_train, n_test=n_train)
-    rows = fig2.run(seed=seed, progress=progress, **kwargs)
+def report(rows: list[dict], methods, out: Path) -> dict:
+    """Summarise rows, print the table and the improvement, write CSV/JSON/PNG to ``out``."""
     summary = fig2.summarize(rows)
-    methods = kwargs.get("methods") or fig2.default_methods()
     gains = fig2.improvement_table(summary, methods=methods, test="clean")
     print(format_table(summary))
     print("\nBest Bayesian method vs best other method, noiseless (clean) test, nMSE reduction:")
@@ -89,6 +70,32 @@ def run(
     return {"summary": summary, "improvement": gains}
 
 
+def run(
+    *,
+    quick: bool = False,
+    n_trials: int = 10,
+    n_train: int = 1000,
+    input_snrs: tuple[float, ...] = (2.0, 5.0),
+    seed: int = 0,
+    out: Path = Path("results/fig2"),
+    progress: bool = True,
+) -> dict:
+    """Run the protocol (or its smoke version), print and write the results."""
+    if quick:
+        kwargs = dict(
+            scenarios=((0, 20), (20, 0)),
+            input_snrs=(2.0,),
+            n_trials=2,
+            n_train=200,
+            n_test=200,
+            methods=fig2.default_methods(bayes_max_iter=300),
+        )
+    else:
+        kwargs = dict(n_trials=n_trials, n_train=n_train, n_test=n_train, input_snrs=input_snrs)
+    rows = fig2.run(seed=seed, progress=progress, **kwargs)
+    return report(rows, kwargs.get("methods"), out)
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -99,6 +106,25 @@ if __name__ == "__main__":
     parser.add_argument("--trials", type=int, default=10)
     parser.add_argument("--n-train", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--snrs", type=float, nargs="+", default=[2.0, 5.0], help="input SNRs")
     parser.add_argument("--out", type=Path, default=Path("results/fig2"))
+    parser.add_argument(
+        "--merge",
+        type=Path,
+        nargs="+",
+        help="summarise the rows of these fig2.json files together (e.g. one run per SNR) "
+        "instead of running anything",
+    )
     args = parser.parse_args()
-    run(quick=args.quick, n_trials=args.trials, n_train=args.n_train, seed=args.seed, out=args.out)
+    if args.merge:
+        rows = [r for path in args.merge for r in json.loads(path.read_text())["rows"]]
+        report(rows, None, args.out)
+    else:
+        run(
+            quick=args.quick,
+            n_trials=args.trials,
+            n_train=args.n_train,
+            input_snrs=tuple(args.snrs),
+            seed=args.seed,
+            out=args.out,
+        )
