@@ -1,9 +1,9 @@
-"""A small end-to-end demo: identify the Franka Panda's dynamics from noisy joint data.
+"""A small end-to-end demo: identify the 7-DoF Franka Panda arm from noisy joint data.
 
-    python scripts/demo.py           # about a minute
+    python scripts/demo.py           # a few minutes
     python scripts/demo.py --smoke   # a few seconds (CI runs this)
 
-The robot description ships with the package (`torchjfa.robots.path("panda")`). The "robot" is
+The robot description ships with the package (`torchjfa.robots.path("panda_arm")`). The "robot" is
 the model itself with true parameters = the URDF's values plus viscous friction: it moves in a
 periodic excitation (two identical periods), its joint positions, velocities and accelerations
 are measured with noise (accelerations the noisiest, as after numerical differentiation) and
@@ -51,7 +51,7 @@ def excitation(model: RigidBodyModel, n: int, *, period_s: float, seed: int, per
 
 def run(*, smoke: bool = False, seed: int = 0) -> dict:
     torch.manual_seed(seed)
-    model = RigidBodyModel.from_urdf(torchjfa.robots.path("panda"))
+    model = RigidBodyModel.from_urdf(torchjfa.robots.path("panda_arm"))
     theta_true = model.nominal_theta.clone()
     for j in range(model.n_dof):
         theta_true[model.layout.index(j, "fv")] = 0.5 if model.joint_types[j] == "revolute" else 5.0
@@ -85,7 +85,7 @@ def run(*, smoke: bool = False, seed: int = 0) -> dict:
     Y2 = model.regressor(qm[n:], qdm[n:], qddm[n:]).reshape(-1, model.n_params)
     input_noise = ((Y1 - Y2) ** 2).mean(0) / 2
 
-    max_iter = 200 if smoke else 5000
+    max_iter = 200 if smoke else 20000
     estimators = {
         "OLS": OLS(fit_intercept=False),
         "Bayes JFA (seed)": BayesianJFA(fit_intercept=False, max_iter=max_iter),
