@@ -1,0 +1,605 @@
+"""The seed paper's robot experiments (section IV.B/C, Tables I and II), in simulation.
+
+For the simulated 7-DoF head (420 Hz) and 10-DoF arm (480 Hz) of `torchjfa.sim`, `run_robot`:
+
+1. records a noisy identification log of the robot tracking a random sum-of-sinusoids
+   excitation with its unmodeled effects (armature, dry friction, cable stiffness) ON;
+2. forms the regression's `Moments` in contiguous time blocks (the folds of LASSO's
+   cross-validation) and estimates the regressor's input noise from the repeated periods
+   (`torchjfa.sim.regressor_noise`);
+3. identifies the parameters with each method and projects them onto physically consistent
+   parameters (`torchjfa.physical.project`, virtual parametrisation, eq. 5 and 8):
+
+   - ``"ridge"``: ridge regression (alpha by GCV instead of the paper's hand tuning), then
+     gradient descent (LBFGS) on the virtual parameters, metric ``X^T X``;
+   - ``"lasso"``: LASSO (alpha by 5-fold contiguous CV) + projection, metric ``X^T X``;
+   - ``"stepwise"``: forward stepwise (F-test, p < 0.05) + projection, metric ``X^T X``;
+   - ``"bjfa"``: the seed's Bayesian JFA as written (`BayesianJFA()`) + projection with its own
+     input-noise estimate, metric ``X^T X + N diag(noise_x_)`` (eq. 8);
+   - ``"bjfa-noise"``: Bayesian JFA with the input noise measured from the repeated periods held
+     fixed, and the projection's metric ``X^T X + N diag(input_noise)``;
+
+4. evaluates each projected estimate, and the true parameters as a reference, with
+   computed-torque control in MuJoCo on a held-out test trajectory (unmodeled effects ON), and
+   scores held-out torque prediction (nMSE) on a log of the same test trajectory.
+
+`format_table` prints a result in the paper's layout, `plot_tracking` draws the per-joint
+tracking errors, `goal_check` tests the issue's goal. ``scripts/reproduce_tables.py`` and
+``notebooks/robot_identification.ipynb`` are thin shells over `run`. Nothing is tuned on the
+test trajectory: every hyper-parameter is fixed or chosen on the training log.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .._progress import progress_bar
+from ..dynamics import InverseDynamics, RigidBodyModel
+from ..estimators import BayesianJFA, Lasso, Ridge, Stepwise
+from ..physical import check, project
+from ..sim import (
+    DEFAULT_RATES,
+    ControlResult,
+    PeriodNoise,
+    SensorNoise,
+    computed_torque,
+    generate_log,
+    load_robot,
+    model_path,
+    random_trajectory,
+    regressor_noise,
+    robot_effects,
+)
+from ..stats import Moments
+
+__all__ = [
+    "METHODS",
+    "LABELS",
+    "REFERENCE",
+    "Identified",
+    "RobotResult",
+    "true_theta",
+    "block_moments",
+    "identify",
+    "evaluate_control",
+    "run_robot",
+    "run",
+    "format_table",
+    "goal_check",
+    "plot_tracking",
+]
+
+METHODS = ("ridge", "bjfa", "bjfa-noise", "lasso", "stepwise")
+REFERENCE = "true"
+LABELS = {
+    "ridge": "Ridge regression + GD (virtual)",
+    "bjfa": "Bayesian JFA (seed) + projection",
+    "bjfa-noise": "Bayesian JFA (noise-informed) + proj.",
+    "lasso": "LASSO regression + projection",
+    "stepwise": "Stepwise regression + projection",
+    REFERENCE: "True parameters (reference)",
+}
+_SIGNALS = {
+    "measured": ("q", "qd", "qdd", "tau"),
+    "true": ("q_true", "qd_true", "qdd_true", "tau_true"),
+}
+
+
+@dataclass
+class Identified:
+    """One method's identification.
+
+    Attributes:
+        method: key in `METHODS`.
+        theta_hat: ``(n_params,)`` the unconstrained estimate, float64.
+        theta: ``(n_params,)`` the projected, physically consistent estimate.
+        estimator: the fitted estimator.
+        fit_s, project_s: wall time of the fit and of the projection, s.
+        consistent_before: theta_hat passes `check` (full physical consistency).
+        consistent_after: theta passes eq. 5's conditions (mass, PSD I_c, friction).
+        projection_cost: eq. 8 at theta (growth of the training residual sum of squares, N^2 m^2).
+        projection_converged: the projection's stopping test was met.
+        warnings: the estimator's warnings (e.g. LASSO not converged), recorded not raised.
+    """
+
+    method: str
+    theta_hat: torch.Tensor
+    theta: torch.Tensor
+    estimator: object
+    fit_s: float
+    project_s: float
+    consistent_before: bool
+    consistent_after: bool
+    projection_cost: float
+    projection_converged: bool
+    warnings: tuple[str, ...] = ()
+
+
+@dataclass
+class RobotResult:
+    """Everything `run_robot` measured for one robot.
+
+    Attributes:
+        robot: ``"head"`` or ``"arm"``.
+        rows: one dict per method and the reference, in table order (keys: ``robot, method,
+            label, success, reason, rms_position`` (rad), ``rms_velocity`` (rad/s),
+            ``rms_feedback`` (N m), each averaged over joints, ``nmse_clean, nmse_measured,
+            fit_s, project_s, consistent_before, consistent_after, projection_cost``).
+        identified: method -> `Identified`.
+        control: method (and `REFERENCE`) -> `ControlResult`.
+        noise: the `PeriodNoise` estimated from the training log.
+        settings: the run's sizes and choices. timings: wall time per stage, s.
+    """
+
+    robot: str
+    rows: list[dict]
+    identified: dict[str, Identified]
+    control: dict[str, ControlResult]
+    noise: PeriodNoise
+    settings: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def true_theta(model: RigidBodyModel, robot: str) -> torch.Tensor:
+    """The simulated robot's true parameters: the MJCF inertials and its viscous damping as fv."""
+    theta = model.nominal_theta.clone()
+    damping = torch.as_tensor(robot_effects(robot)["damping"], dtype=theta.dtype)
+    names = list(load_robot(robot).joint(i).name for i in range(model.n_dof))
+    for j, name in enumerate(model.joint_names):
+        theta[model.layout.index(j, "fv")] = damping[names.index(name)]
+    return theta
+
+
+def block_moments(
+    model: RigidBodyModel,
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    qdd: torch.Tensor,
+    tau: torch.Tensor,
+    *,
+    n_blocks: int = 5,
+    chunk_size: int = 4096,
+    progress: bool = False,
+) -> list[Moments]:
+    """`Moments` of ``n_blocks`` contiguous time blocks of a log (fold moments for CV).
+
+    Args:
+        model: the robot model (its regressor).
+        q, qd, qdd, tau: ``(n, n_dof)`` signals in the model's joint order (rad, rad/s, rad/s^2,
+            N m).
+        n_blocks: number of blocks, at least 2 and at most n.
+        chunk_size: samples per regressor call.
+        progress: show a progress bar.
+
+    Returns:
+        A list of ``n_blocks`` `Moments` whose sum is the whole log's.
+    """
+    n = q.shape[0]
+    if isinstance(n_blocks, bool) or not isinstance(n_blocks, int) or not 2 <= n_blocks <= n:
+        raise ValueError(f"n_blocks must be an int in [2, {n}], got {n_blocks!r}")
+    edges = np.linspace(0, n, n_blocks + 1).round().astype(int)
+    out = []
+    with progress_bar(total=n, desc="moments", enabled=progress, unit="sample") as bar:
+        for s, e in zip(edges[:-1], edges[1:], strict=True):
+            out.append(model.moments(q[s:e], qd[s:e], qdd[s:e], tau[s:e], chunk_size=chunk_size))
+            bar.update(int(e - s))
+    return out
+
+
+def _estimator(method: str, input_noise, options: Mapping) -> object:
+    bjfa = {"max_iter": 20000, **options.get("bjfa", {})}
+    if method == "ridge":
+        return Ridge(fit_intercept=False)
+    if method == "lasso":
+        lasso = {"n_alphas": 20, "tol": 1e-6, "max_iter": 2000, **options.get("lasso", {})}
+        return Lasso(fit_intercept=False, **lasso)
+    if method == "stepwise":
+        return Stepwise(fit_intercept=False, **options.get("stepwise", {}))
+    if method == "bjfa":
+        return BayesianJFA(fit_intercept=False, **bjfa)
+    if method == "bjfa-noise":
+        if input_noise is None:
+            raise ValueError("method 'bjfa-noise' needs input_noise (e.g. from regressor_noise)")
+        return BayesianJFA(fit_intercept=False, input_noise=input_noise, **bjfa)
+    raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+
+
+def identify(
+    model: RigidBodyModel,
+    folds: Sequence[Moments],
+    *,
+    methods: Sequence[str] = METHODS,
+    input_noise=None,
+    options: Mapping | None = None,
+    progress: bool = False,
+) -> dict[str, Identified]:
+    """Fit every method on the fold moments and project each estimate (see the module).
+
+    Args:
+        model: the robot model (the parameter layout).
+        folds: `Moments` of contiguous blocks of the training log (from `block_moments`).
+        methods: keys of `METHODS`.
+        input_noise: ``(n_params,)`` per-column input-noise variance (``PeriodNoise.input_noise``),
+            needed by ``"bjfa-noise"``.
+        options: extra keywords per step: ``"bjfa"`` (`BayesianJFA`, default
+            ``max_iter=20000``), ``"lasso"`` (`Lasso`, default ``n_alphas=20, tol=1e-6,
+            max_iter=2000``), ``"stepwise"`` (`Stepwise`), ``"project"`` (`project`).
+        progress: show a progress bar over the methods.
+
+    Returns:
+        method -> `Identified`, in the order of ``methods``.
+    """
+    options = dict(options or {})
+    folds = list(folds)
+    if len(folds) < 2 or not all(isinstance(f, Moments) for f in folds):
+        raise TypeError("folds must be a list of at least two torchjfa.Moments")
+    total = folds[0]
+    for f in folds[1:]:
+        total = total + f
+    out = {}
+    with progress_bar(total=len(methods), desc="identify", enabled=progress) as bar:
+        for method in methods:
+            est = _estimator(method, input_noise, options)
+            start = time.perf_counter()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                est.fit_moments(folds)  # non-convergence is reported, not raised
+            fit_s = time.perf_counter() - start
+            noise = {"bjfa": getattr(est, "noise_x_", None), "bjfa-noise": input_noise}.get(method)
+            start = time.perf_counter()
+            proj = project(
+                est.coef_,
+                layout=model,
+                moments=total,
+                input_noise=noise,
+                parametrization="virtual",
+                **options.get("project", {}),
+            )
+            out[method] = Identified(
+                method=method,
+                theta_hat=est.coef_.detach().clone(),
+                theta=proj.theta.detach().clone(),
+                estimator=est,
+                fit_s=fit_s,
+                project_s=time.perf_counter() - start,
+                consistent_before=check(est.coef_, model).ok,
+                consistent_after=check(proj.theta, model).weakly_ok,
+                projection_cost=proj.cost,
+                projection_converged=proj.converged,
+                warnings=tuple(dict.fromkeys(str(w.message) for w in caught)),
+            )
+            bar.update(1)
+    return out
+
+
+def evaluate_control(
+    robot: str,
+    model: RigidBodyModel,
+    thetas: Mapping[str, torch.Tensor],
+    trajectory,
+    *,
+    duration: float,
+    unmodeled: bool | Mapping = True,
+    bandwidth_hz: float = 5.0,
+    progress: bool = False,
+) -> dict[str, ControlResult]:
+    """Computed-torque control of the simulated robot with each parameter vector.
+
+    Args:
+        robot: ``"head"`` or ``"arm"`` (control at its default rate).
+        model: the rigid-body model the parameters belong to.
+        thetas: name -> ``(n_params,)`` parameters.
+        trajectory: the held-out reference (a `SinusoidTrajectory`).
+        duration: seconds of control per run.
+        unmodeled: the robot's joint effects (as `load_robot`).
+        bandwidth_hz: bandwidth of the error dynamics.
+        progress: show a progress bar over the runs.
+
+    Returns:
+        name -> `ControlResult` (``success=False`` is the paper's FAILURE).
+    """
+    mj = load_robot(robot, unmodeled=unmodeled)
+    out = {}
+    with progress_bar(total=len(thetas), desc=f"control {robot}", enabled=progress) as bar:
+        for name, theta in thetas.items():
+            out[name] = computed_torque(
+                mj,
+                InverseDynamics(model, theta),
+                trajectory,
+                duration=duration,
+                control_rate=DEFAULT_RATES[robot],
+                bandwidth_hz=bandwidth_hz,
+            )
+            bar.update(1)
+    return out
+
+
+def _nmse(Y: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor) -> float:
+    """Mean over joints of MSE_j / var(tau_j); ``Y (n, n_dof, p)``, ``tau (n, n_dof)``."""
+    err = Y @ theta - tau
+    return float(((err * err).mean(0) / tau.var(0, correction=0)).mean())
+
+
+def run_robot(
+    robot: str,
+    *,
+    n_samples: int = 500_000,
+    methods: Sequence[str] = METHODS,
+    noise: SensorNoise | None = None,
+    unmodeled: bool | Mapping = True,
+    signals: str = "measured",
+    base_frequency: float = 0.25,
+    test_duration: float = 4.0,
+    control: bool = True,
+    noise_periods: int | None = 10,
+    n_blocks: int = 5,
+    seed: int = 0,
+    options: Mapping | None = None,
+    progress: bool = False,
+) -> RobotResult:
+    """The whole experiment for one robot (see the module docstring).
+
+    Args:
+        robot: ``"head"`` or ``"arm"``.
+        n_samples: training samples at the control rate (the paper: about 500,000).
+        methods: keys of `METHODS`.
+        noise: sensor noise of the training and test logs (default `SensorNoise()`).
+        unmodeled: the robot's joint effects, for the logs and the control runs.
+        signals: identify from the ``"measured"`` (noisy, differentiated) signals or from the
+            simulator's ``"true"`` ones (exactness checks).
+        base_frequency: Hz, f0 of the training excitation (its period must be whole samples).
+        test_duration: s, length of the held-out control run and torque log.
+        control: run the computed-torque evaluation (False: torque nMSE only).
+        noise_periods: periods used by `regressor_noise` (None: all).
+        n_blocks: contiguous blocks of the training log (LASSO's CV folds).
+        seed: seeds the training excitation and noise; the test trajectory uses ``seed + 1000``.
+        options: passed to `identify`.
+        progress: show progress bars.
+
+    Returns:
+        A `RobotResult`.
+    """
+    if signals not in _SIGNALS:
+        raise ValueError(f"signals must be one of {tuple(_SIGNALS)}, got {signals!r}")
+    noise = SensorNoise() if noise is None else noise
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = now - clock
+        clock = now
+
+    mj = load_robot(robot, unmodeled=unmodeled)
+    train_traj = random_trajectory(mj, base_frequency=base_frequency, seed=seed)
+    test_traj = random_trajectory(mj, seed=seed + 1000)
+    kw = {"unmodeled": unmodeled, "noise": noise, "progress": progress}
+    log = generate_log(robot, n_samples=n_samples, trajectory=train_traj, seed=seed, **kw)
+    n_test = int(round(test_duration * DEFAULT_RATES[robot]))
+    test = generate_log(robot, n_samples=n_test, trajectory=test_traj, seed=seed + 1000, **kw)
+    lap("simulate")
+    model = RigidBodyModel.from_mjcf(model_path(robot))
+    perm = [log.joint_names.index(j) for j in model.joint_names]
+    sig = [getattr(log, k)[:, perm] for k in _SIGNALS[signals]]
+    folds = block_moments(model, *sig, n_blocks=n_blocks, progress=progress)
+    lap("moments")
+    period_noise = regressor_noise(model, log, max_periods=noise_periods, progress=progress)
+    lap("noise")
+    found = identify(
+        model,
+        folds,
+        methods=methods,
+        input_noise=period_noise.input_noise,
+        options=options,
+        progress=progress,
+    )
+    lap("identify")
+    thetas = {m: found[m].theta for m in methods}
+    thetas[REFERENCE] = true_theta(model, robot)
+    tperm = [test.joint_names.index(j) for j in model.joint_names]
+    clean = [getattr(test, k)[:, tperm] for k in _SIGNALS["true"]]
+    meas = [getattr(test, k)[:, tperm] for k in _SIGNALS["measured"]]
+    Y_clean, Y_meas = model.regressor(*clean[:3]), model.regressor(*meas[:3])
+    lap("nmse")
+    ctrl = {}
+    if control:
+        ctrl = evaluate_control(
+            robot, model, thetas, test_traj, duration=test_duration, unmodeled=unmodeled,
+            progress=progress,
+        )  # fmt: skip
+    lap("control")
+    rows = []
+    for name, theta in thetas.items():
+        res, ident = ctrl.get(name), found.get(name)
+        ok = res is not None and res.success
+        nan = float("nan")
+        rows.append(
+            {
+                "robot": robot,
+                "method": name,
+                "label": LABELS[name],
+                "success": ok if res is not None else None,
+                "reason": None if res is None else res.reason,
+                "rms_position": res.mean_rms_position if ok else nan,
+                "rms_velocity": res.mean_rms_velocity if ok else nan,
+                "rms_feedback": res.mean_rms_feedback if ok else nan,
+                "nmse_clean": _nmse(Y_clean, clean[3], theta),
+                "nmse_measured": _nmse(Y_meas, meas[3], theta),
+                "fit_s": ident.fit_s if ident else nan,
+                "project_s": ident.project_s if ident else nan,
+                "consistent_before": ident.consistent_before if ident else check(theta, model).ok,
+                "consistent_after": ident.consistent_after if ident else check(theta, model).ok,
+                "projection_cost": ident.projection_cost if ident else nan,
+            }
+        )
+    settings = {
+        "robot": robot, "n_samples": n_samples, "control_rate": DEFAULT_RATES[robot],
+        "n_params": model.n_params, "signals": signals, "unmodeled": unmodeled is not False,
+        "noise": [noise.position_std, noise.velocity_std, noise.torque_std],
+        "base_frequency": base_frequency, "test_duration": test_duration, "seed": seed,
+        "noise_periods": period_noise.n_periods, "n_blocks": n_blocks,
+    }  # fmt: skip
+    return RobotResult(robot, rows, found, ctrl, period_noise, settings, timings)
+
+
+#: default training samples per robot of the full run (the paper: about 500,000; see docs)
+FULL_SAMPLES = 500_000
+#: the smoke configuration: a 1 s excitation period, 4 periods, short control runs
+SMOKE = {
+    "n_samples_periods": 3,
+    "base_frequency": 1.0,
+    "test_duration": 0.25,
+    "options": {
+        "bjfa": {"max_iter": 200},
+        "lasso": {"n_alphas": 2, "tol": 1e-4, "max_iter": 10},
+        "stepwise": {"max_features": 10},
+        "project": {"max_iter": 10, "warm_start": False},
+    },
+}
+
+
+def run(
+    robots: Sequence[str] = ("head", "arm"),
+    *,
+    smoke: bool = False,
+    n_samples: int | None = None,
+    test_duration: float | None = None,
+    seed: int = 0,
+    progress: bool = False,
+    **kwargs,
+) -> dict[str, RobotResult]:
+    """Run `run_robot` for each robot, full size or in smoke mode.
+
+    Args:
+        robots: robot names.
+        smoke: tiny sizes (`SMOKE`: 3 one-second periods of training data, 0.25 s of control,
+            few iterations) so both robots run end to end in well under a minute.
+        n_samples: training samples (default `FULL_SAMPLES`; smoke: 3 periods).
+        test_duration: s (default 4.0; smoke 0.25).
+        seed: see `run_robot`.
+        progress: show progress bars.
+        **kwargs: passed to `run_robot`.
+
+    Returns:
+        robot -> `RobotResult`.
+    """
+    out = {}
+    for robot in robots:
+        kw = dict(kwargs)
+        if smoke:
+            kw.setdefault("base_frequency", SMOKE["base_frequency"])
+            kw.setdefault("options", SMOKE["options"])
+            kw.setdefault("noise_periods", None)
+            default_n = int(SMOKE["n_samples_periods"] * DEFAULT_RATES[robot])
+            default_t = SMOKE["test_duration"]
+        else:
+            default_n, default_t = FULL_SAMPLES, 4.0
+        out[robot] = run_robot(
+            robot,
+            n_samples=default_n if n_samples is None else n_samples,
+            test_duration=default_t if test_duration is None else test_duration,
+            seed=seed,
+            progress=progress,
+            **kw,
+        )
+    return out
+
+
+def _fmt(v: float, ok: bool) -> str:
+    return f"{v:>10.4f}" if ok else f"{'FAILURE':>10}"
+
+
+def format_table(result: RobotResult) -> str:
+    """The paper's layout: rows = methods, columns = RMS position (rad), velocity (rad/s),
+    feedback command (N m) averaged over joints (FAILURE where the run failed), then held-out
+    torque nMSE (noiseless and measured test signals) and fit + projection time."""
+    s = result.settings
+    head = (
+        f"{'method':<40} {'pos (rad)':>10} {'vel (rad/s)':>11} {'fb (N m)':>10} "
+        f"{'nMSE clean':>10} {'nMSE meas':>10} {'fit s':>7} {'proj s':>7}"
+    )
+    lines = [
+        f"{result.robot}: {s['n_params']} parameters, {s['n_samples']} training samples at "
+        f"{s['control_rate']:g} Hz, held-out computed-torque run of {s['test_duration']:g} s, "
+        f"unmodeled effects {'on' if s['unmodeled'] else 'off'}",
+        head,
+        "-" * len(head),
+    ]
+    for r in result.rows:
+        ok = bool(r["success"])
+        lines.append(
+            f"{r['label']:<40} {_fmt(r['rms_position'], ok)} {_fmt(r['rms_velocity'], ok):>11} "
+            f"{_fmt(r['rms_feedback'], ok)} {r['nmse_clean']:>10.4g} {r['nmse_measured']:>10.4g} "
+            f"{r['fit_s']:>7.2f} {r['project_s']:>7.2f}"
+        )
+    failed = [f"  {r['label']}: {r['reason']}" for r in result.rows if r["success"] is False]
+    if failed:
+        lines += ["FAILURE reasons:", *failed]
+    return "\n".join(lines)
+
+
+def goal_check(results: Mapping[str, RobotResult], *, threshold: float = 0.10) -> dict:
+    """The issue's goal: the best Bayesian pipeline has at least ``threshold`` lower RMS feedback
+    command than ridge + GD on every robot, and does not fail on any robot (the paper's
+    Bayesian method ran on both robots).
+
+    Returns:
+        ``{"met": bool, "robots": {robot: {"ridge", "best_bayes", "best_bayes_feedback",
+        "reduction", "bayes_failed", "met"}}}``; ``reduction`` is ``1 - bayes / ridge`` (inf
+        when ridge failed and a Bayesian pipeline did not, NaN when both failed).
+    """
+    per = {}
+    for robot, res in results.items():
+        rows = {r["method"]: r for r in res.rows}
+        ridge = rows["ridge"]["rms_feedback"] if rows["ridge"]["success"] else math.inf
+        bayes = [(r["rms_feedback"], m) for m, r in rows.items() if m.startswith("bjfa")]
+        good = [(v, m) for v, m in bayes if rows[m]["success"]]
+        best_v, best_m = min(good) if good else (math.inf, None)
+        reduction = 1 - best_v / ridge if math.isfinite(ridge) else math.inf * (best_m is not None)
+        failed = best_m is None
+        per[robot] = {
+            "ridge": ridge, "best_bayes": best_m, "best_bayes_feedback": best_v,
+            "reduction": reduction, "bayes_failed": failed,
+            "met": (not failed) and reduction >= threshold,
+        }  # fmt: skip
+    return {"met": all(p["met"] for p in per.values()), "robots": per}
+
+
+def plot_tracking(result: RobotResult, path=None):
+    """Per-joint RMS position, velocity and feedback errors of each successful run (grouped bars,
+    log scale). Saves a PNG at ``path`` when given; returns the matplotlib figure."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    runs = {m: r for m, r in result.control.items() if r.success}
+    fig, axes = plt.subplots(3, 1, figsize=(11, 9), sharex=True)
+    names = next(iter(result.control.values())).joint_names if result.control else ()
+    x = np.arange(len(names))
+    width = 0.8 / max(len(runs), 1)
+    panels = (("rms_position", "position (rad)"), ("rms_velocity", "velocity (rad/s)"),
+              ("rms_feedback", "feedback (N m)"))  # fmt: skip
+    for ax, (attr, unit) in zip(axes, panels, strict=True):
+        for k, (m, r) in enumerate(runs.items()):
+            ax.bar(x + (k - (len(runs) - 1) / 2) * width, getattr(r, attr), width, label=LABELS[m])
+        ax.set_yscale("log")
+        ax.set_ylabel(f"RMS {unit}")
+    failed = [LABELS[m] for m, r in result.control.items() if not r.success]
+    title = f"{result.robot}: computed-torque tracking on the held-out trajectory"
+    axes[0].set_title(title + (f"\nFAILURE: {', '.join(failed)}" if failed else ""), fontsize=9)
+    axes[0].legend(fontsize=7, ncol=2)
+    axes[-1].set_xticks(x, names, rotation=30, ha="right", fontsize=8)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
