@@ -1,0 +1,162 @@
+"""Saving and loading identified models: bitwise round trips, in this and in a fresh process."""
+
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import torch
+
+import torchjfa
+import torchjfa.robots
+from torchjfa.dynamics import InverseDynamics, RigidBodyModel
+from torchjfa.io import (
+    identified_from_dict,
+    identified_to_dict,
+    load_identified,
+    read_identified,
+    save_identified,
+)
+from torchjfa.sim import model_path
+
+
+def _perturbed_theta(model, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    theta = model.nominal_theta
+    return theta * (1 + 0.1 * torch.rand(theta.shape, generator=g, dtype=torch.float64))
+
+
+def _states(n_dof, n=32, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    return [torch.randn(n, n_dof, generator=g, dtype=torch.float64) for _ in range(3)]
+
+
+@pytest.fixture(scope="module")
+def head():
+    return RigidBodyModel.from_mjcf(model_path("head"))
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return RigidBodyModel.from_urdf(
+        torchjfa.robots.path("panda"), friction=("viscous", "coulomb"), gravity=(0.0, 0.0, -9.8)
+    )
+
+
+@pytest.mark.parametrize("which", ["head", "panda"])
+def test_round_trip_gives_bitwise_identical_torques(which, head, panda, tmp_path):
+    model = head if which == "head" else panda
+    theta = _perturbed_theta(model)
+    path = tmp_path / "identified.npz"
+    save_identified(
+        path,
+        model,
+        theta,
+        output_noise=0.25,
+        input_noise=torch.ones(model.n_params),
+        estimator="BayesianJFA",
+    )
+    idyn = load_identified(path)
+    assert isinstance(idyn, InverseDynamics)
+    assert not idyn.trainable
+    q, qd, qdd = _states(model.n_dof)
+    expected = InverseDynamics(model, theta)(q, qd, qdd)
+    assert torch.equal(idyn(q, qd, qdd), expected)
+    assert torch.equal(idyn.theta.detach(), theta)
+    assert idyn.model.parameter_names == model.parameter_names
+    assert idyn.model.friction == model.friction
+    assert torch.equal(idyn.model.gravity, model.gravity)
+    record = read_identified(path)
+    assert record.library_version == torchjfa.__version__
+    assert record.extras["estimator"] == "BayesianJFA"
+    assert float(record.extras["output_noise"]) == 0.25
+    assert torch.equal(record.extras["input_noise"], torch.ones(model.n_params))
+    assert record.source_path == model.source_path
+
+
+def test_inverse_dynamics_is_saved_with_its_theta_and_loads_trainable(head, tmp_path):
+    theta = _perturbed_theta(head, seed=3)
+    path = tmp_path / "idyn.npz"
+    save_identified(path, InverseDynamics(head, theta))
+    idyn = load_identified(path, trainable=True)
+    assert idyn.trainable
+    assert torch.equal(idyn.theta.detach(), theta)
+
+
+def test_loads_from_the_stored_text_when_the_description_file_is_gone(tmp_path):
+    src = tmp_path / "robot.xml"
+    shutil.copy(torchjfa.robots.path("branched_tree"), src)
+    model = RigidBodyModel.from_mjcf(src)
+    theta = _perturbed_theta(model)
+    save_identified(tmp_path / "m.npz", model, theta)
+    src.unlink()
+    idyn = load_identified(tmp_path / "m.npz")
+    q, qd, qdd = _states(model.n_dof)
+    assert torch.equal(idyn(q, qd, qdd), model.inverse_dynamics(q, qd, qdd, theta))
+    assert idyn.model.source_path is None  # rebuilt from the XML text
+
+
+def test_a_fresh_process_loads_the_file_and_gives_the_same_torques(head, tmp_path):
+    theta = _perturbed_theta(head, seed=5)
+    save_identified(tmp_path / "m.npz", head, theta)
+    q, qd, qdd = _states(head.n_dof, n=16, seed=7)
+    np.savez(tmp_path / "states.npz", q=q.numpy(), qd=qd.numpy(), qdd=qdd.numpy())
+    code = textwrap.dedent(
+        """
+        import sys
+        import numpy as np
+        import torch
+        from torchjfa.io import load_identified
+        idyn = load_identified(sys.argv[1])
+        s = np.load(sys.argv[2])
+        tau = idyn(*(torch.from_numpy(s[k]) for k in ("q", "qd", "qdd")))
+        np.save(sys.argv[3], tau.detach().numpy())
+        """
+    )
+    out = tmp_path / "tau.npy"
+    subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code,
+            str(tmp_path / "m.npz"),
+            str(tmp_path / "states.npz"),
+            str(out),
+        ],
+        check=True,
+        timeout=120,
+    )
+    expected = head.inverse_dynamics(q, qd, qdd, theta).numpy()
+    assert np.array_equal(np.load(out), expected)
+
+
+def test_dict_form_survives_torch_save_with_weights_only(head, tmp_path):
+    theta = _perturbed_theta(head)
+    torch.save(identified_to_dict(head, theta, output_noise=torch.tensor(0.5)), tmp_path / "d.pt")
+    record = identified_from_dict(torch.load(tmp_path / "d.pt", weights_only=True))
+    assert torch.equal(record.theta, theta)
+    assert float(record.extras["output_noise"]) == 0.5
+    q, qd, qdd = _states(head.n_dof)
+    assert torch.equal(
+        record.inverse_dynamics()(q, qd, qdd), head.inverse_dynamics(q, qd, qdd, theta)
+    )
+
+
+def test_bad_input_is_rejected(head, tmp_path):
+    with pytest.raises(ValueError, match="shape"):
+        save_identified(tmp_path / "a.npz", head, torch.zeros(3))
+    with pytest.raises(ValueError, match="theta is required"):
+        save_identified(tmp_path / "a.npz", head)
+    with pytest.raises(TypeError, match="RigidBodyModel"):
+        save_identified(tmp_path / "a.npz", "head", torch.zeros(77))
+    with pytest.raises(TypeError, match="extra"):
+        save_identified(tmp_path / "a.npz", head, head.nominal_theta, bad={"a": 1})
+    with pytest.raises(ValueError, match="NaN"):
+        save_identified(tmp_path / "a.npz", head, torch.full((77,), float("nan")))
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(ValueError, match="not a torchjfa identified-model"):
+        load_identified(tmp_path / "other.npz")
+    with pytest.raises(ValueError, match="format"):
+        identified_from_dict({"theta": torch.zeros(3)})

@@ -1,0 +1,274 @@
+"""Saving and loading identified rigid-body models.
+
+One call writes everything needed to rebuild an identified model anywhere, one call reads it back
+into a ready `torchjfa.dynamics.InverseDynamics`:
+
+    >>> torchjfa.io.save_identified("head.npz", model, theta, output_noise=psi_y)  # doctest: +SKIP
+    >>> idyn = torchjfa.io.load_identified("head.npz")        # InverseDynamics     # doctest: +SKIP
+
+The file is a ``numpy.savez_compressed`` archive read with ``allow_pickle=False`` (no pickled
+objects), format version 1:
+
+=====================  ==================  =====================================================
+key                    shape, dtype        meaning
+=====================  ==================  =====================================================
+``format``             (), str             ``"torchjfa.IdentifiedModel"``
+``version``            (), int64           1
+``library_version``    (), str             ``torchjfa.__version__`` of the writer
+``source_format``      (), str             ``"urdf"`` or ``"mjcf"``
+``source_path``        (), str             the description's absolute path ("" if none)
+``source_xml``         (), str             the description's text (loads without the path)
+``gravity``            (3,), float64       gravity in the root frame, m/s^2
+``friction``           (n_friction,), str  friction terms per joint (`ParameterLayout`)
+``joint_names``        (n_dof,), str       the layout's joint order
+``parameter_names``    (n_params,), str    the layout's parameter names
+``theta``              (n_params,), float  the identified parameters
+``extra_<name>``       any                 user extras, e.g. noise estimates (numbers/strings)
+=====================  ==================  =====================================================
+
+The same content as a dictionary of tensors and Python values (`identified_to_dict`,
+`identified_from_dict`) is what `torchjfa.learning` stores inside its Lightning checkpoints, so
+that those load with ``torch.load(..., weights_only=True)``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .dynamics import InverseDynamics, RigidBodyModel
+
+__all__ = [
+    "IdentifiedModel",
+    "save_identified",
+    "read_identified",
+    "load_identified",
+    "identified_to_dict",
+    "identified_from_dict",
+]
+
+_FORMAT = "torchjfa.IdentifiedModel"
+_VERSION = 1
+_EXTRA = "extra_"
+
+
+def _library_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+@dataclass
+class IdentifiedModel:
+    """The content of an identified-model file.
+
+    Attributes:
+        model: the `RigidBodyModel` rebuilt from the stored description.
+        theta: ``(n_params,)`` identified parameters (the stored dtype, float64 normally).
+        extras: the user's extras, name -> ``torch.Tensor`` (numbers) or ``str``.
+        library_version: the torchjfa version that wrote the file.
+        source_path: the description's path when it was written (None if none).
+    """
+
+    model: RigidBodyModel
+    theta: torch.Tensor
+    extras: dict[str, object] = field(default_factory=dict)
+    library_version: str = ""
+    source_path: str | None = None
+
+    def inverse_dynamics(self, *, trainable: bool = False) -> InverseDynamics:
+        """A ready `InverseDynamics` of ``model`` and ``theta``."""
+        return InverseDynamics(self.model, self.theta, trainable=trainable)
+
+
+def _unpack(model, theta) -> tuple[RigidBodyModel, torch.Tensor]:
+    if isinstance(model, InverseDynamics):
+        if theta is None:
+            theta = model.theta.detach()
+        model = model.model
+    if not isinstance(model, RigidBodyModel):
+        raise TypeError(f"model must be a RigidBodyModel or an InverseDynamics, got {type(model)}")
+    if theta is None:
+        raise ValueError("theta is required when model is a RigidBodyModel")
+    theta = torch.as_tensor(theta).detach().cpu()
+    if not theta.is_floating_point():
+        theta = theta.to(torch.float64)
+    if tuple(theta.shape) != (model.n_params,):
+        raise ValueError(
+            f"theta must have shape ({model.n_params},) for this model, got {tuple(theta.shape)}"
+        )
+    if not bool(torch.isfinite(theta).all()):
+        raise ValueError("theta has NaN or infinite entries")
+    return model, theta
+
+
+def _check_extra(name: str, value) -> object:
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"extra names must be identifiers, got {name!r}")
+    if isinstance(value, str):
+        return value
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().clone()
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(
+            f"extra {name!r} must be a string, a number or an array of numbers, got "
+            f"{type(value).__name__} (dtype {arr.dtype})"
+        )
+    return torch.as_tensor(arr.copy())
+
+
+def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
+    """The identified model as a dictionary of tensors, strings and lists (no custom classes).
+
+    Args:
+        model: a `RigidBodyModel`, or an `InverseDynamics` (its theta is the default).
+        theta: ``(n_params,)`` parameters.
+        **extras: numbers, arrays or strings stored alongside (e.g. ``output_noise=...``).
+
+    Returns:
+        A dict that `identified_from_dict` reads and ``torch.save`` / ``torch.load(...,
+        weights_only=True)`` round-trip.
+
+    Raises:
+        TypeError: on a wrong model type or an extra that is neither numeric nor a string.
+        ValueError: on a theta of the wrong shape or with non-finite entries.
+    """
+    model, theta = _unpack(model, theta)
+    return {
+        "format": _FORMAT,
+        "version": _VERSION,
+        "library_version": _library_version(),
+        "source_format": model.source_format,
+        "source_path": model.source_path or "",
+        "source_xml": model.source_xml,
+        "gravity": model.gravity,
+        "friction": list(model.friction),
+        "joint_names": list(model.joint_names),
+        "parameter_names": list(model.parameter_names),
+        "theta": theta.clone(),
+        "extras": {k: _check_extra(k, v) for k, v in extras.items()},
+    }
+
+
+def _build_model(fmt: str, path: str, xml: str, gravity, friction) -> RigidBodyModel:
+    if fmt not in ("urdf", "mjcf"):
+        raise ValueError(f"unknown description format {fmt!r}; expected 'urdf' or 'mjcf'")
+    build = RigidBodyModel.from_urdf if fmt == "urdf" else RigidBodyModel.from_mjcf
+    gravity = [float(g) for g in torch.as_tensor(gravity).reshape(-1).tolist()]
+    # the stored path is used only while it still holds the same description (MJCF includes
+    # and mesh paths resolve relative to it); otherwise the stored text itself is compiled
+    source = xml
+    if path and Path(path).is_file() and Path(path).read_text() == xml:
+        source = path
+    return build(source, friction=tuple(friction), gravity=gravity)
+
+
+def identified_from_dict(data: dict) -> IdentifiedModel:
+    """Inverse of `identified_to_dict`.
+
+    Raises:
+        ValueError: if the dict is not an identified model of a known version, or the stored
+            description no longer gives the stored parameter layout.
+    """
+    if not isinstance(data, dict) or data.get("format") != _FORMAT:
+        raise ValueError("not a torchjfa identified model (missing or wrong 'format' entry)")
+    if int(data["version"]) != _VERSION:
+        raise ValueError(f"unsupported identified-model version {int(data['version'])}")
+    model = _build_model(
+        str(data["source_format"]),
+        str(data["source_path"]),
+        str(data["source_xml"]),
+        data["gravity"],
+        [str(f) for f in data["friction"]],
+    )
+    names = tuple(str(n) for n in data["parameter_names"])
+    if model.parameter_names != names:
+        raise ValueError(
+            "the stored description gives a different parameter layout than the stored one "
+            f"({len(model.parameter_names)} vs {len(names)} parameters)"
+        )
+    theta = torch.as_tensor(data["theta"]).clone()
+    return IdentifiedModel(
+        model=model,
+        theta=theta,
+        extras=dict(data.get("extras", {})),
+        library_version=str(data["library_version"]),
+        source_path=str(data["source_path"]) or None,
+    )
+
+
+def save_identified(path: str | os.PathLike, model, theta=None, **extras) -> None:
+    """Write an identified model to ``path`` (the module's ``.npz`` format).
+
+    Args:
+        path: the file to write (``numpy`` appends nothing: the name is used as given).
+        model: a `RigidBodyModel`, or an `InverseDynamics` (its theta is the default).
+        theta: ``(n_params,)`` identified parameters.
+        **extras: numbers, arrays or strings to keep with the model, e.g. noise estimates
+            ``input_noise=(n_params,)``, ``output_noise=()`` (N^2 m^2), ``estimator="BayesianJFA"``.
+
+    Raises:
+        TypeError, ValueError: as `identified_to_dict`.
+    """
+    data = identified_to_dict(model, theta, **extras)
+    arrays: dict[str, np.ndarray] = {}
+    for key, value in data.items():
+        if key == "extras":
+            continue
+        if isinstance(value, torch.Tensor):
+            arrays[key] = value.numpy()
+        elif isinstance(value, list):
+            arrays[key] = np.array(value, dtype=np.str_).reshape(len(value))
+        elif isinstance(value, int):
+            arrays[key] = np.array(value, dtype=np.int64)
+        else:
+            arrays[key] = np.array(value)
+    for key, value in data["extras"].items():
+        arrays[_EXTRA + key] = np.array(value) if isinstance(value, str) else value.numpy()
+    with open(os.fspath(path), "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def read_identified(path: str | os.PathLike) -> IdentifiedModel:
+    """Read a file written by `save_identified` (the model, theta, extras, writer's version).
+
+    Raises:
+        FileNotFoundError: if the file does not exist.
+        ValueError: if it is not an identified-model file of a known version.
+    """
+    with np.load(os.fspath(path), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    if "format" not in arrays or str(arrays["format"]) != _FORMAT:
+        raise ValueError(f"{os.fspath(path)!r} is not a torchjfa identified-model file")
+    data: dict[str, object] = {"extras": {}}
+    for key, arr in arrays.items():
+        if key.startswith(_EXTRA):
+            name = key[len(_EXTRA) :]
+            data["extras"][name] = str(arr) if arr.dtype.kind == "U" else torch.from_numpy(arr)
+        elif key in ("friction", "joint_names", "parameter_names"):
+            data[key] = [str(s) for s in arr.tolist()]
+        elif arr.dtype.kind == "U":
+            data[key] = str(arr)
+        elif key == "version":
+            data[key] = int(arr)
+        else:
+            data[key] = torch.from_numpy(arr)
+    return identified_from_dict(data)
+
+
+def load_identified(path: str | os.PathLike, *, trainable: bool = False) -> InverseDynamics:
+    """Load a file written by `save_identified` into a ready `InverseDynamics`.
+
+    Args:
+        path: the ``.npz`` file.
+        trainable: make theta trainable (see `InverseDynamics`).
+
+    Returns:
+        ``InverseDynamics(model, theta)`` giving bitwise the torques of the saved model.
+    """
+    return read_identified(path).inverse_dynamics(trainable=trainable)

@@ -1,0 +1,287 @@
+"""`ResidualDynamics`: identified rigid-body dynamics plus a learned residual, as an ``nn.Module``.
+
+``tau = Y(q, qd, qdd) theta + r(features(q, qd, qdd))``: the physics part is an
+`torchjfa.dynamics.InverseDynamics` (frozen, or fine-tuned through `VirtualParameters` so that
+theta stays physically consistent while it trains), the residual ``r`` any ``nn.Module`` (an
+`MLP` by default) on the concatenated state or on features the user gives. Use it in plain
+torch; `torchjfa.learning.ResidualDynamicsModule` trains it with Lightning. Without a physics
+part (``inverse_dynamics=None``) it is a plain learned model, the baseline the residual model is
+compared with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import torch
+from torch import nn
+
+from ..dynamics import InverseDynamics
+from ..physical import VirtualParameters
+
+__all__ = ["MLP", "ResidualDynamics", "state_features"]
+
+_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
+
+
+def state_features(q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> torch.Tensor:
+    """The default residual input: ``(*batch, 3 n_dof)`` = ``[q, qd, qdd]`` concatenated."""
+    return torch.cat([q, qd, qdd], -1)
+
+
+class MLP(nn.Module):
+    """A fully connected network with input and output standardisation.
+
+    ``y = out_std * net((x - in_mean) / in_std) + out_mean``; the four statistics are buffers
+    (saved in ``state_dict``), identity until `fit_normalization` sets them from data.
+
+    Args:
+        in_features, out_features: input and output widths.
+        hidden: widths of the hidden layers.
+        activation: ``"tanh"``, ``"relu"``, ``"silu"`` or ``"gelu"``.
+        dtype, device: of the weights (float64 by default, as the physics part).
+        seed: seeds the weight initialisation (a local ``torch.Generator``), None: torch's
+            global generator.
+        zero_output: start the last layer at zero, so that the untrained network returns
+            ``out_mean`` (a residual model then starts as its physics part).
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        out_features: int,
+        *,
+        hidden: Sequence[int] = (64, 64),
+        activation: str = "tanh",
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+        seed: int | None = 0,
+        zero_output: bool = True,
+    ) -> None:
+        super().__init__()
+        for name, v in (("in_features", in_features), ("out_features", out_features)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be a positive int, got {v!r}")
+        hidden = tuple(hidden)
+        if any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in hidden):
+            raise ValueError(f"hidden must be a sequence of positive ints, got {hidden!r}")
+        if activation not in _ACTIVATIONS:
+            raise ValueError(
+                f"activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}"
+            )
+        self.in_features, self.out_features = in_features, out_features
+        self.hidden, self.activation = hidden, activation
+        widths = (in_features, *hidden, out_features)
+        layers: list[nn.Module] = []
+        for k in range(len(widths) - 1):
+            layers.append(nn.Linear(widths[k], widths[k + 1], dtype=dtype, device=device))
+            if k < len(widths) - 2:
+                layers.append(_ACTIVATIONS[activation]())
+        self.net = nn.Sequential(*layers)
+        self.zero_output = bool(zero_output)
+        if seed is not None:
+            self.reset_parameters(seed)
+        elif self.zero_output:
+            with torch.no_grad():
+                layers[-1].weight.zero_()
+                layers[-1].bias.zero_()
+        kw = {"dtype": dtype, "device": device}
+        self.register_buffer("in_mean", torch.zeros(in_features, **kw))
+        self.register_buffer("in_std", torch.ones(in_features, **kw))
+        self.register_buffer("out_mean", torch.zeros(out_features, **kw))
+        self.register_buffer("out_std", torch.ones(out_features, **kw))
+
+    def reset_parameters(self, seed: int) -> None:
+        """Re-initialise the weights uniformly in ``+-1/sqrt(fan_in)`` (as ``nn.Linear``),
+        from a generator seeded ``seed``; the last layer at zero with ``zero_output``."""
+        g = torch.Generator(device="cpu").manual_seed(int(seed))
+        linear = [m for m in self.net if isinstance(m, nn.Linear)]
+        with torch.no_grad():
+            for k, layer in enumerate(linear):
+                bound = layer.in_features**-0.5
+                for p in (layer.weight, layer.bias):
+                    u = torch.rand(p.shape, generator=g, dtype=torch.float64)
+                    p.copy_((2 * u - 1) * bound)
+                    if self.zero_output and k == len(linear) - 1:
+                        p.zero_()
+
+    @torch.no_grad()
+    def fit_normalization(self, inputs: torch.Tensor, targets: torch.Tensor | None = None) -> None:
+        """Set the standardisation from data.
+
+        Args:
+            inputs: ``(n, in_features)``.
+            targets: ``(n, out_features)``; None keeps the output statistics.
+        """
+        for name, x, width in (
+            ("inputs", inputs, self.in_features),
+            ("targets", targets, self.out_features),
+        ):
+            if x is None:
+                continue
+            if x.ndim != 2 or x.shape[1] != width or x.shape[0] < 2:
+                raise ValueError(f"{name} must have shape (n >= 2, {width}), got {tuple(x.shape)}")
+            mean, std = x.mean(0), x.std(0)
+            std = torch.where(std > 0, std, torch.ones_like(std))
+            prefix = "in" if name == "inputs" else "out"
+            getattr(self, f"{prefix}_mean").copy_(mean)
+            getattr(self, f"{prefix}_std").copy_(std)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(*batch, in_features)`` -> ``(*batch, out_features)`` in the weights' dtype."""
+        x = x.to(self.in_mean.dtype)
+        return self.net((x - self.in_mean) / self.in_std) * self.out_std + self.out_mean
+
+    def extra_repr(self) -> str:
+        return f"hidden={self.hidden}, activation={self.activation!r}"
+
+
+class ResidualDynamics(nn.Module):
+    """Joint torques as identified rigid-body dynamics plus a learned residual.
+
+    Args:
+        inverse_dynamics: the identified model; None for a purely learned model (then
+            ``n_dof`` is required).
+        residual: any module mapping ``(*batch, n_features)`` to ``(*batch, n_dof)``; default
+            ``MLP(n_features, n_dof, hidden=hidden, seed=seed)``.
+        fine_tune: if True, theta is trained through `VirtualParameters` initialised at the
+            identified theta (so it stays physically consistent: positive masses, PSD inertias,
+            non-negative viscous friction); an inconsistent identified theta is first moved to a
+            nearby consistent one. If False the identified theta is frozen.
+        features: a callable (a function or an ``nn.Module``, saved with the model when it is
+            one) mapping ``(q, qd, qdd)`` to ``(*batch, n_features)``; default `state_features`.
+        n_features: width of ``features``' output; default ``3 n_dof`` (the default features).
+        n_dof: joints, when there is no ``inverse_dynamics``.
+        hidden, seed: of the default `MLP`.
+
+    Attributes:
+        inverse_dynamics: the `InverseDynamics` (its theta frozen), or None.
+        virtual: the `VirtualParameters` being fine-tuned, or None.
+        residual: the residual module.
+
+    Example:
+        >>> idyn = torchjfa.io.load_identified("head.npz")          # doctest: +SKIP
+        >>> model = ResidualDynamics(idyn)                            # doctest: +SKIP
+        >>> tau = model(q, qd, qdd)   # (*batch, n_dof)               # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        inverse_dynamics: InverseDynamics | None,
+        residual: nn.Module | None = None,
+        *,
+        fine_tune: bool = False,
+        features: Callable[..., torch.Tensor] | None = None,
+        n_features: int | None = None,
+        n_dof: int | None = None,
+        hidden: Sequence[int] = (64, 64),
+        seed: int | None = 0,
+    ) -> None:
+        super().__init__()
+        if inverse_dynamics is not None and not isinstance(inverse_dynamics, InverseDynamics):
+            raise TypeError(
+                f"inverse_dynamics must be an InverseDynamics or None, got {type(inverse_dynamics)}"
+            )
+        if inverse_dynamics is None:
+            if n_dof is None:
+                raise ValueError("n_dof is required when there is no inverse_dynamics")
+            if fine_tune:
+                raise ValueError("fine_tune=True needs an inverse_dynamics to fine-tune")
+        else:
+            if n_dof is not None and n_dof != inverse_dynamics.model.n_dof:
+                raise ValueError(
+                    f"n_dof={n_dof} but the inverse dynamics has {inverse_dynamics.model.n_dof}"
+                )
+            n_dof = inverse_dynamics.model.n_dof
+            inverse_dynamics.theta.requires_grad_(False)
+        if features is not None and not callable(features):
+            raise TypeError(f"features must be callable, got {type(features)}")
+        self.n_dof = int(n_dof)
+        self.inverse_dynamics = inverse_dynamics
+        self.virtual = (
+            VirtualParameters.from_theta(inverse_dynamics.theta.detach(), inverse_dynamics.model)
+            if fine_tune
+            else None
+        )
+        self.features = state_features if features is None else features
+        self.n_features = 3 * self.n_dof if n_features is None else int(n_features)
+        if features is not None and n_features is None and residual is None:
+            raise ValueError("give n_features with custom features and the default residual")
+        if residual is None:
+            residual = MLP(self.n_features, self.n_dof, hidden=hidden, seed=seed)
+        if not isinstance(residual, nn.Module):
+            raise TypeError(f"residual must be an nn.Module, got {type(residual)}")
+        self.residual = residual
+
+    @property
+    def fine_tune(self) -> bool:
+        return self.virtual is not None
+
+    @property
+    def has_physics(self) -> bool:
+        return self.inverse_dynamics is not None
+
+    def theta(self) -> torch.Tensor | None:
+        """The current rigid-body parameters ``(n_params,)`` (None without physics)."""
+        if self.inverse_dynamics is None:
+            return None
+        if self.virtual is not None:
+            return self.virtual()
+        return self.inverse_dynamics.theta
+
+    def rigid_body_torque(
+        self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, *, regressor=None
+    ) -> torch.Tensor:
+        """``Y(q, qd, qdd) theta``, ``(*batch, n_dof)`` (zeros without physics).
+
+        Args:
+            q, qd, qdd: ``(*batch, n_dof)``.
+            regressor: optionally the precomputed ``Y`` ``(*batch, n_dof, n_params)`` of these
+                samples (`RigidBodyModel.regressor` is the expensive part; a data module can
+                compute it once per sample).
+        """
+        if self.inverse_dynamics is None:
+            return torch.zeros_like(q)
+        if regressor is None:
+            regressor = self.inverse_dynamics.model.regressor(q, qd, qdd)
+        theta = self.theta()
+        return regressor @ theta.to(dtype=regressor.dtype, device=regressor.device)
+
+    def residual_torque(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> torch.Tensor:
+        """The learned part ``r(features(q, qd, qdd))``, ``(*batch, n_dof)``."""
+        x = self.features(q, qd, qdd)
+        out = self.residual(x)
+        if out.shape != q.shape:
+            raise ValueError(
+                f"the residual returned shape {tuple(out.shape)}, expected {tuple(q.shape)}"
+            )
+        return out
+
+    def forward(
+        self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, *, regressor=None
+    ) -> torch.Tensor:
+        """Joint torques (N m or N).
+
+        Args:
+            q, qd, qdd: ``(*batch, n_dof)`` joint positions, velocities, accelerations.
+            regressor: optional precomputed ``(*batch, n_dof, n_params)`` (see
+                `rigid_body_torque`).
+
+        Returns:
+            ``(*batch, n_dof)`` in q's dtype.
+        """
+        for name, v in (("q", q), ("qd", qd), ("qdd", qdd)):
+            if not isinstance(v, torch.Tensor):
+                raise TypeError(f"{name} must be a torch.Tensor, got {type(v)}")
+            if v.ndim == 0 or v.shape[-1] != self.n_dof or v.shape != q.shape:
+                raise ValueError(
+                    f"q, qd and qdd must all have shape (*batch, {self.n_dof}); "
+                    f"{name} has {tuple(v.shape)}"
+                )
+        tau = self.residual_torque(q, qd, qdd).to(q.dtype)
+        if self.inverse_dynamics is not None:
+            tau = tau + self.rigid_body_torque(q, qd, qdd, regressor=regressor).to(q.dtype)
+        return tau
+
+    def extra_repr(self) -> str:
+        return f"n_dof={self.n_dof}, physics={self.has_physics}, fine_tune={self.fine_tune}"
