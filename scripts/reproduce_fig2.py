@@ -76,6 +76,8 @@ def run(
     n_trials: int = 10,
     n_train: int = 1000,
     input_snrs: tuple[float, ...] = (2.0, 5.0),
+    scenarios: tuple[tuple[int, int], ...] = fig2.SCENARIOS,
+    lasso_options: dict | None = None,
     seed: int = 0,
     out: Path = Path("results/fig2"),
     progress: bool = True,
@@ -91,7 +93,14 @@ def run(
             methods=fig2.default_methods(bayes_max_iter=300),
         )
     else:
-        kwargs = dict(n_trials=n_trials, n_train=n_train, n_test=n_train, input_snrs=input_snrs)
+        kwargs = dict(
+            n_trials=n_trials,
+            n_train=n_train,
+            n_test=n_train,
+            input_snrs=input_snrs,
+            scenarios=scenarios,
+            methods=fig2.default_methods(lasso_options=lasso_options),
+        )
     rows = fig2.run(seed=seed, progress=progress, **kwargs)
     return report(rows, kwargs.get("methods"), out)
 
@@ -107,6 +116,12 @@ if __name__ == "__main__":
     parser.add_argument("--n-train", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--snrs", type=float, nargs="+", default=[2.0, 5.0], help="input SNRs")
+    parser.add_argument(
+        "--scenarios", type=int, nargs="+", help="redundant/irrelevant pairs, e.g. 60 30 90 0"
+    )
+    parser.add_argument(
+        "--lasso-max-iter", type=int, help="cap on LASSO's coordinate-descent sweeps per penalty"
+    )
     parser.add_argument("--out", type=Path, default=Path("results/fig2"))
     parser.add_argument(
         "--merge",
@@ -125,6 +140,12 @@ if __name__ == "__main__":
             n_trials=args.trials,
             n_train=args.n_train,
             input_snrs=tuple(args.snrs),
+            scenarios=tuple(zip(args.scenarios[::2], args.scenarios[1::2], strict=True))
+            if args.scenarios
+            else fig2.SCENARIOS,
+            lasso_options=None
+            if args.lasso_max_iter is None
+            else {"max_iter": args.lasso_max_iter},
             seed=args.seed,
             out=args.out,
         )

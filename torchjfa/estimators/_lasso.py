@@ -87,7 +87,22 @@ def _polish(sxx: np.ndarray, sxy: np.ndarray, lam: float, coef: np.ndarray):
     return out, not bool((np.abs(grad[~support]) > slack).any())
 
 
-def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
+def _duality_gap(s, b, grad, lam, syy):
+    """Duality gap of ``0.5 ||y - X b||^2 + lam ||b||_1`` per problem, from the moments.
+
+    With ``r = y - X b``: ``X^T r = grad``, ``r^T y = syy - b.s``, ``||r||^2 = r^T y - b.grad``;
+    the dual point is ``r`` scaled into the feasible set ``||X^T theta||_inf <= lam``
+    (scikit-learn's ``enet_coordinate_descent_gram``).
+    """
+    ry = syy - np.einsum("bi,bi->b", b, s)
+    r2 = np.maximum(ry - np.einsum("bi,bi->b", b, grad), 0.0)
+    dual_norm = np.abs(grad).max(1)
+    const = np.where(dual_norm > lam, lam / np.maximum(dual_norm, np.finfo(np.float64).tiny), 1.0)
+    gap = 0.5 * r2 * (1 + const**2) + lam * np.abs(b).sum(1) - const * ry
+    return np.where(dual_norm > lam, gap, r2 + lam * np.abs(b).sum(1) - ry)
+
+
+def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int, syy=None, gap_tol=0.0):
     """Solve a batch of lasso problems in place, starting from ``coef``.
 
     Args:
@@ -96,6 +111,11 @@ def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
         tol: stop a problem when no coordinate moved more than ``tol * max |coef|`` in a sweep
             (only needed when the exact step does not apply, e.g. singular ``S_AA``).
         max_iter: maximum number of sweeps.
+        syy: ``(B,)`` output sums of squares; with ``gap_tol`` > 0, a problem also stops when
+            its duality gap (scikit-learn's, of ``0.5 ||y - X b||^2 + lam ||b||_1``) is at most
+            ``gap_tol * syy``. This ends problems whose minimiser is not unique (exactly
+            collinear inputs), where neither the exact step nor the step size settle.
+        gap_tol: relative duality-gap tolerance (0: off).
 
     Returns:
         ``(n_sweeps, converged)``.
@@ -113,6 +133,9 @@ def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
     usable = diag > 0
     safe = np.where(usable, diag, 1.0)
     grad = s - np.einsum("bij,bj->bi", S, b)  # (B, d)
+    syy_np = None
+    if syy is not None and gap_tol > 0:
+        syy_np = np.broadcast_to(syy.detach().cpu().double().numpy(), (n_batch,)).copy()
     done = np.zeros(n_batch, dtype=bool)
     tried: list[bytes | None] = [None] * n_batch
     cols = np.ascontiguousarray(np.swapaxes(S, 1, 2))  # cols[:, j] = S[:, :, j]
@@ -142,6 +165,8 @@ def _coordinate_descent(sxx, sxy, lam, coef, *, tol: float, max_iter: int):
                 grad[i] = s[i] - S[i] @ point
                 done[i] = exact
         done |= stalled
+        if syy_np is not None:
+            done |= _duality_gap(s, b, grad, lam_np, syy_np) <= gap_tol * syy_np
         if done.all():
             result = (sweep, True)
             break
@@ -155,6 +180,8 @@ def lasso_path(
     n: torch.Tensor,
     alphas: torch.Tensor,
     *,
+    syy: torch.Tensor | None = None,
+    gap_tol: float = 0.0,
     tol: float = 1e-10,
     max_iter: int = 10_000,
     verbose: bool = False,
@@ -166,6 +193,9 @@ def lasso_path(
         sxy: cross-moments, shape ``(B, d)``.
         n: total weight of each problem, shape ``(B,)``.
         alphas: penalties, shape ``(A,)``, best in decreasing order (for the warm starts).
+        syy: output sums of squares (centred when fitting an intercept), shape ``(B,)``, for
+            the duality-gap stop.
+        gap_tol: relative duality-gap tolerance (see `Lasso`; 0: off).
         tol: coordinate-descent fallback tolerance (see `Lasso`).
         max_iter: maximum sweeps per penalty.
         verbose: progress bar over the penalties.
@@ -179,7 +209,9 @@ def lasso_path(
     n_iter = []
     with progress_bar(total=len(alphas), desc="lasso path", enabled=verbose) as bar:
         for a, alpha in enumerate(alphas):
-            sweeps, ok = _coordinate_descent(sxx, sxy, n * alpha, coef, tol=tol, max_iter=max_iter)
+            sweeps, ok = _coordinate_descent(
+                sxx, sxy, n * alpha, coef, tol=tol, max_iter=max_iter, syy=syy, gap_tol=gap_tol
+            )
             if not ok:
                 warnings.warn(
                     f"lasso coordinate descent did not converge in {max_iter} sweeps at "
@@ -210,6 +242,10 @@ class Lasso(MomentEstimator):
         tol: fallback stopping tolerance of coordinate descent (largest coordinate change
             relative to the largest coefficient), used when the exact polish step does not
             apply.
+        gap_tol: a problem also stops when its duality gap is at most ``gap_tol * y^T y``
+            (``y`` centred when fitting an intercept; scikit-learn stops at 1e-4). It ends the
+            problems whose minimiser is not unique (exactly collinear inputs), where the exact
+            step does not apply and coordinate descent creeps; 0 turns it off.
         max_iter: maximum coordinate-descent sweeps per penalty.
         fit_intercept: centre the moments and fit an unpenalised intercept.
         cv: number of contiguous folds used by `fit` when ``alpha`` is None.
@@ -234,6 +270,7 @@ class Lasso(MomentEstimator):
         n_alphas: int = 100,
         eps: float = 1e-3,
         tol: float = 1e-10,
+        gap_tol: float = 1e-6,
         max_iter: int = 10_000,
         fit_intercept: bool = True,
         cv: int = 5,
@@ -245,6 +282,7 @@ class Lasso(MomentEstimator):
         self.n_alphas = n_alphas
         self.eps = eps
         self.tol = tol
+        self.gap_tol = gap_tol
         self.max_iter = max_iter
 
     def _needs_folds(self) -> bool:
@@ -254,6 +292,8 @@ class Lasso(MomentEstimator):
         if self.alpha is not None:
             check_positive_real(self.alpha, "alpha")
         check_positive_real(self.tol, "tol")
+        if not (isinstance(self.gap_tol, numbers.Real) and 0 <= self.gap_tol < 1):
+            raise ValueError(f"gap_tol must be in [0, 1), got {self.gap_tol!r}")
         for name in ("n_alphas", "max_iter"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
@@ -263,12 +303,16 @@ class Lasso(MomentEstimator):
             raise ValueError(f"eps must be in (0, 1), got {self.eps!r}")
 
     def _solve(self, moments: Moments, folds) -> torch.Tensor:
-        sxx, sxy, _, n = self._centered(moments)
-        kw = {"tol": float(self.tol), "max_iter": int(self.max_iter)}
+        sxx, sxy, syy, n = self._centered(moments)
+        kw = {
+            "tol": float(self.tol),
+            "max_iter": int(self.max_iter),
+            "gap_tol": float(self.gap_tol),
+        }
         if self.alpha is not None:
             self.alpha_ = float(self.alpha)
             alphas = torch.tensor([self.alpha_], dtype=sxx.dtype, device=sxx.device)
-            coefs, n_iter = lasso_path(sxx[None], sxy[None], n[None], alphas, **kw)
+            coefs, n_iter = lasso_path(sxx[None], sxy[None], n[None], alphas, syy=syy[None], **kw)
             self.n_iter_ = n_iter[0]
             return coefs[0, 0]
         if self.alphas is None:
@@ -286,12 +330,13 @@ class Lasso(MomentEstimator):
             grid = check_grid(self.alphas, "alphas", device=sxx.device)
             grid = torch.sort(grid, descending=True).values
         splits = train_test_splits(moments, folds)
-        problems = [self._centered(train) for train, _ in splits] + [(sxx, sxy, None, n)]
+        problems = [self._centered(train) for train, _ in splits] + [(sxx, sxy, syy, n)]
         coefs, n_iter = lasso_path(
             torch.stack([p[0] for p in problems]),
             torch.stack([p[1] for p in problems]),
             torch.stack([p[3] for p in problems]),
             grid,
+            syy=torch.stack([p[2] for p in problems]),
             verbose=self.verbose,
             **kw,
         )  # (A, K + 1, d)

@@ -98,7 +98,9 @@ def _noise_from_repeats(p: SyntheticProblem) -> torch.Tensor:
     return (p.X_train - p.X_train_repeat).var(0) / 2
 
 
-def default_methods(*, bayes_max_iter: int = 20000) -> list[Method]:
+def default_methods(
+    *, bayes_max_iter: int = 20000, lasso_options: dict | None = None
+) -> list[Method]:
     """Every method of the comparison: the paper's baselines, TLS and ridge, JFA, and Bayesian
     JFA as written (eq. 3 and eq. 4) and noise-informed (true noise; noise from repeats)."""
     shared: dict = {}
@@ -107,7 +109,7 @@ def default_methods(*, bayes_max_iter: int = 20000) -> list[Method]:
         Method("Ridge (GCV)", _plain(Ridge)),
         Method("Stepwise", _plain(Stepwise)),
         Method("PLS (CV)", _plain(PLS)),
-        Method("LASSO (CV)", _plain(Lasso)),
+        Method("LASSO (CV)", _plain(lambda: Lasso(**(lasso_options or {})))),
         Method("TLS", _plain(TLS)),
         Method("JFA", _plain(JFA)),
         Method("Bayes JFA, eq. 3", _bayes("eq3", _no_noise, bayes_max_iter, shared), True),
