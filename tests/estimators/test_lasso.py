@@ -1,5 +1,7 @@
 """Lasso against scikit-learn's Lasso, the optimality conditions, and brute-force CV."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -135,3 +137,36 @@ def test_invalid_hyper_parameters_raise_at_fit(make, match):
     X, y = _problem(n=30, d=4)
     with pytest.raises(ValueError, match=match):
         make().fit(torch.tensor(X), torch.tensor(y))
+
+
+def test_duality_gap_from_moments_equals_primal_minus_dual_on_rows():
+    from torchjfa.estimators._lasso import _duality_gap
+
+    rng = np.random.default_rng(21)
+    X = rng.normal(size=(80, 6))
+    y = X @ rng.normal(size=6) + rng.normal(size=80)
+    b = rng.normal(size=6) * 0.3
+    for lam in (0.5, 5.0, 500.0):  # scaled dual point, and the unscaled case
+        r = y - X @ b
+        const = min(1.0, lam / np.abs(X.T @ r).max())
+        primal = 0.5 * r @ r + lam * np.abs(b).sum()
+        dual = const * r @ y - 0.5 * const**2 * r @ r
+        gap = _duality_gap(
+            (X.T @ y)[None], b[None], (X.T @ r)[None], np.array([lam]), np.array([y @ y])
+        )
+        np.testing.assert_allclose(gap[0], primal - dual, rtol=1e-10)
+        assert gap[0] >= -1e-9
+
+
+def test_exactly_collinear_inputs_reach_scikit_learns_objective():
+    rng = np.random.default_rng(22)
+    X = rng.normal(size=(300, 4))
+    X = np.column_stack([X, X @ np.array([0.5, 0.5, 0.0, 0.0])])  # exact convex combination
+    y = X[:, :4] @ np.array([1.0, 2.0, 0.0, -1.0]) + 0.1 * rng.normal(size=300)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no non-convergence warning
+        model = Lasso(alpha=0.01, max_iter=2000).fit(torch.tensor(X), torch.tensor(y))
+    ref = _sk_lasso(0.01).fit(X, y)
+    objective = lambda c, i: 0.5 / 300 * np.sum((y - X @ c - i) ** 2) + 0.01 * np.abs(c).sum()  # noqa: E731
+    ours = objective(model.coef_.numpy(), float(model.intercept_))
+    assert ours <= objective(ref.coef_, ref.intercept_) * (1 + 1e-5)
