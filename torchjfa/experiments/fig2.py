@@ -271,31 +271,41 @@ def plot(summary: Sequence[dict], path=None):
     for i, snr in enumerate(snrs):
         for j, test in enumerate(tests):
             ax = axes[i][j]
+            cells = [s for s in summary if s["input_snr"] == snr and s["test"] == test]
+            # methods that blow up (TLS, maximum-likelihood JFA's eq. 4) would flatten the
+            # others: the axis stops at 1.4 x the worst mean below 1 (nMSE 1 = predicting the
+            # mean), and bars beyond it are cut and labelled with their value
+            sane = [c["nmse_mean"] for c in cells if c["nmse_mean"] < 1.0]
+            top = 1.4 * max(sane) if sane else None
             for k, method in enumerate(methods):
                 means, stds = [], []
                 for sc in scenarios:
                     cell = [
-                        s
-                        for s in summary
-                        if (s["redundant"], s["irrelevant"]) == sc
-                        and s["input_snr"] == snr
-                        and s["test"] == test
-                        and s["method"] == method
+                        c
+                        for c in cells
+                        if (c["redundant"], c["irrelevant"]) == sc and c["method"] == method
                     ]
                     means.append(cell[0]["nmse_mean"] if cell else float("nan"))
                     stds.append(cell[0]["nmse_std"] if cell else 0.0)
                 xs = [n + (k - (len(methods) - 1) / 2) * width for n in range(len(scenarios))]
+                shown = [min(m, top) if top else m for m in means]
+                errs = [0.0 if top and m > top else e for m, e in zip(means, stds, strict=True)]
                 ax.bar(
                     xs,
-                    means,
+                    shown,
                     width,
-                    yerr=stds,
+                    yerr=errs,
                     label=method,
                     color=cmap(k % 20),
                     edgecolor="black" if "Bayes" in method else "none",
                     linewidth=0.6,
                     capsize=1.5,
                 )
+                for x, m in zip(xs, means, strict=True):
+                    if top and m > top:
+                        ax.text(x, top, f"{m:.3g}", rotation=90, ha="center", va="top", fontsize=6)
+            if top:
+                ax.set_ylim(0, top)
             ax.set_xticks(range(len(scenarios)))
             ax.set_xticklabels([f"r={r}, u={u}" for r, u in scenarios])
             ax.set_ylabel("nMSE")
