@@ -155,10 +155,11 @@ class ResidualDynamicsModule(L.LightningModule):
         if tensors is not None:
             self.fit_statistics(tensors)
 
-    def training_step(self, batch, batch_idx):
+    def _logged_loss(self, batch, name: str) -> torch.Tensor:
+        """The loss of a batch, logged as an epoch mean synchronised across processes."""
         loss = self._loss(batch)
         self.log(
-            "train_loss",
+            name,
             loss,
             on_step=False,
             on_epoch=True,
@@ -167,17 +168,11 @@ class ResidualDynamicsModule(L.LightningModule):
         )
         return loss
 
+    def training_step(self, batch, batch_idx):
+        return self._logged_loss(batch, "train_loss")
+
     def validation_step(self, batch, batch_idx):
-        loss = self._loss(batch)
-        self.log(
-            "val_loss",
-            loss,
-            on_step=False,
-            on_epoch=True,
-            sync_dist=True,
-            batch_size=batch["q"].shape[0],
-        )
-        return loss
+        return self._logged_loss(batch, "val_loss")
 
     def test_step(self, batch, batch_idx):
         loss = self._loss(batch)
