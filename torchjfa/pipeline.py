@@ -38,6 +38,7 @@ from ._validation import as_tensor, check_finite
 from .distributed import all_reduce_moments, rank_and_world_size, shard_range
 from .dynamics import InverseDynamics, RigidBodyModel
 from .estimators import BayesianJFA, LinearEstimator
+from .estimators import jackknife as _jackknife
 from .physical import ProjectionResult
 from .physical import project as _project
 from .stats import Moments
@@ -358,11 +359,13 @@ class IdentificationResult:
         theta_hat: ``(n_params,)`` the estimator's unconstrained ``coef_``.
         estimator: the fitted estimator.
         moments: the `Moments` of all the data (``n_features = n_params``).
-        folds: the fold `Moments` the estimator saw, or None.
+        folds: the fold `Moments` (the cross-validation folds or the jackknife blocks), or None.
         projection: the `torchjfa.physical.ProjectionResult`, or None.
         input_noise: ``(n_params,)`` the input-noise variances in the projection's metric
             ``X^T X + N diag(input_noise)`` (None: ``X^T X`` alone).
         world_size: processes that shared the pass over the data.
+        theta_hat_std: ``(n_params,)`` the delete-one-block jackknife spread of ``theta_hat``
+            (`torchjfa.estimators.jackknife`) when ``identify(..., jackknife=K)``, else None.
     """
 
     model: RigidBodyModel
@@ -374,6 +377,7 @@ class IdentificationResult:
     projection: ProjectionResult | None = field(repr=False)
     input_noise: torch.Tensor | None = field(repr=False)
     world_size: int = 1
+    theta_hat_std: torch.Tensor | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         return (
@@ -436,6 +440,7 @@ def identify(
     group=None,
     device: torch.device | str | None = None,
     progress: bool = False,
+    jackknife: int = 0,
 ) -> IdentificationResult:
     """Identify a robot's parameters from joint logs in one streaming pass.
 
@@ -470,6 +475,9 @@ def identify(
         group: the process group (default: the default group).
         device: where the regressor, moments and fits are computed (default CPU).
         progress: show a progress bar over the samples.
+        jackknife: K >= 2 refits the estimator on all but one of K contiguous blocks of the
+            samples for ``theta_hat_std`` (K more fits; 0 skips it). An estimator that
+            cross-validates uses its ``cv`` folds as the blocks.
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -506,8 +514,11 @@ def identify(
     bad = sorted(set(options) & set(_RESERVED))
     if bad:
         raise ValueError(f"projection_options may not set {bad}; identify sets them")
+    jackknife = int(jackknife)
+    if jackknife == 1 or jackknife < 0:
+        raise ValueError(f"jackknife must be 0 (off) or at least 2 blocks, got {jackknife}")
     # estimators that choose a hyper-parameter by cross-validation need fold moments
-    n_folds = int(estimator.cv) if estimator._needs_folds() else None
+    n_folds = int(estimator.cv) if estimator._needs_folds() else (jackknife or None)
     stats = stream_moments(
         model,
         logs,
@@ -520,7 +531,10 @@ def identify(
     )
     folds = stats if n_folds is not None else None
     moments = sum(stats[1:], stats[0].copy()) if folds is not None else stats
-    estimator.fit_moments(folds if folds is not None else moments)
+    theta_hat_std = None
+    if jackknife:
+        theta_hat_std = _jackknife(estimator, folds, progress=progress)[1]
+    estimator.fit_moments(folds if estimator._needs_folds() else moments)
     theta_hat = estimator.coef_.detach().to(torch.float64)
     if noise is None and hasattr(estimator, "noise_x_"):
         noise = estimator.noise_x_.detach().to(torch.float64).cpu()
@@ -547,4 +561,5 @@ def identify(
         projection=projection,
         input_noise=noise,
         world_size=world,
+        theta_hat_std=theta_hat_std,
     )

@@ -1,6 +1,21 @@
-"""torchjfa.data"""
+"""torchjfa.data: joint logs from files, and their preparation for identification.
+
+`read_log` reads CSV, NPZ and Parquet logs into a `JointLog`; `prepare` resamples, filters,
+differentiates, trims and decimates it; `differentiate` is the filter and derivatives alone.
+"""
 
 from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ
 from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate
 from ._differentiate import savgol_window as savgol_window
+from ._log import KINDS as KINDS
+from ._log import TIME_COLUMN as TIME_COLUMN
+from ._log import JointLog as JointLog
+from ._log import LogError as LogError
+from ._log import read_log as read_log
+from ._log import write_log as write_log
+from ._prepare import detect_period as detect_period
+from ._prepare import is_uniform as is_uniform
+from ._prepare import prepare as prepare
+from ._prepare import resample as resample
+from ._prepare import transient_periods as transient_periods

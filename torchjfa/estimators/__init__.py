@@ -7,6 +7,7 @@ the baselines of the seed paper.
 """
 
 from ._base import LinearEstimator as LinearEstimator
+from ._jackknife import jackknife as jackknife
 from ._jfa import JFA as JFA
 from ._jfa import BayesianJFA as BayesianJFA
 from ._lasso import Lasso as Lasso

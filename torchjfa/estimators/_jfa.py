@@ -269,6 +269,10 @@ class _JFABase(LinearEstimator):
         self.weights_x_ = full(mx * sx)
         if bayes:
             self.relevance_ = full((self._hyper(False)[1]) / b, math.inf)
+            # first-order spread of w_z / w_x under the factorised posterior Q(w_z) Q(w_x)
+            V = torch.as_tensor(st[1], **kw)
+            var = (V[0] + (mz / mx) ** 2 * V[1]) / (mx * mx)
+            self.coef_std_ = full(torch.sqrt(var) * sy / sx)
         self.n_features_in_ = d
         self.active_ = active
         if self.fit_intercept:
@@ -393,6 +397,10 @@ class BayesianJFA(_JFABase):
         intercept_, intercept_noisy_: 0-d intercepts of ``coef_`` and of ``coef_noisy_``.
         noise_x_: ``(d,)`` psi_x, input noise variances (each column's units squared).
         noise_z_: ``(d,)`` psi_z (y's units squared). noise_y_: 0-d psi_y (y's units squared).
+        coef_std_: ``(d,)`` posterior spread of ``coef_``: the first-order (delta-method)
+            standard deviation of ``w_z / w_x`` under the factorised posterior
+            ``Q(w_z) Q(w_x)``, units of ``coef_``. Mean-field posteriors are too narrow
+            when the loadings are correlated a posteriori; read it as a lower bound.
         relevance_: ``(d,)`` posterior mean ``<alpha_m>``, the prior precision of the loadings
             of input m in standardised units (x_m and y scaled to unit variance, so
             dimensionless): about 1 to 10 for a relevant input, orders of magnitude larger for

@@ -1,0 +1,5 @@
+"""``python -m torchjfa``: the same as the ``torchjfa`` command."""
+
+from .cli import _entry
+
+_entry()

@@ -1,0 +1,505 @@
+"""The ``torchjfa`` command: identify a robot from a log, simulate logs, evaluate a model.
+
+    torchjfa simulate head --out log.csv
+    torchjfa identify head log.csv --estimator bayes-jfa --friction viscous,coulomb --out result/
+    torchjfa evaluate result/model.npz --robot head
+
+A thin shell over `torchjfa.data` (read and prepare the log), `torchjfa.identify` (moments,
+estimator, projection) and `torchjfa.report` (held-out errors, tables, figures). Bad input
+(a missing column, an unknown joint, NaN rows, time going backwards, too few samples, a robot
+file that does not parse) ends with one line on stderr and exit status 2, not a traceback;
+``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main", "ESTIMATORS"]
+
+ESTIMATORS = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
+_FRICTION = ("viscous", "coulomb", "offset")
+_SIM_ROBOTS = ("head", "arm")
+
+
+class UsageError(Exception):
+    """Bad input from the user: printed as one line, exit status 2."""
+
+
+# ------------------------------------------------------------------------------ helpers
+def _friction(text: str) -> tuple[str, ...]:
+    if text.strip().lower() in ("", "none"):
+        return ()
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in _FRICTION]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown friction term(s) {bad}; choose from {_FRICTION}")
+    return kinds
+
+
+def _columns(text: str | None) -> dict[str, str] | None:
+    """``ours=theirs,...`` or a JSON file/object mapping the library's names to the log's."""
+    if not text:
+        return None
+    if os.path.isfile(text):
+        text = Path(text).read_text()
+    text = text.strip()
+    if text.startswith("{"):
+        try:
+            mapping = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise UsageError(f"--columns: not valid JSON: {exc}") from None
+    else:
+        mapping = {}
+        for item in text.split(","):
+            if "=" not in item:
+                raise UsageError(f"--columns: expected ours=theirs pairs, got {item!r}")
+            k, v = item.split("=", 1)
+            mapping[k.strip()] = v.strip()
+    if not isinstance(mapping, dict):
+        raise UsageError("--columns must map the library's column names to the log's")
+    return {str(k): str(v) for k, v in mapping.items()}
+
+
+def load_model(robot: str, friction: tuple[str, ...]):
+    """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name."""
+    from . import robots
+    from .dynamics import RigidBodyModel
+    from .sim import model_path
+
+    if robot in _SIM_ROBOTS:
+        path, fmt = str(model_path(robot)), "mjcf"
+    elif robot in robots.available():
+        path = robots.path(robot)
+        fmt = "urdf" if path.endswith(".urdf") else "mjcf"
+    else:
+        path = robot
+        if not os.path.isfile(path):
+            raise UsageError(
+                f"no robot file {path!r} (give a .urdf or MJCF .xml path, or one of "
+                f"{sorted(set(robots.available()) | set(_SIM_ROBOTS))})"
+            )
+        fmt = "urdf" if path.lower().endswith(".urdf") else "mjcf"
+    try:
+        if fmt == "urdf":
+            return RigidBodyModel.from_urdf(path, friction=friction)
+        return RigidBodyModel.from_mjcf(path, friction=friction)
+    except Exception as exc:  # the parsers raise many kinds; all mean "this file is not usable"
+        raise UsageError(
+            f"cannot build a robot model from {path!r}: {type(exc).__name__}: {exc}"
+        ) from None
+
+
+def _estimator(name: str, args):
+    from . import estimators as E
+
+    kw = {"fit_intercept": False}
+    if name == "bayes-jfa":
+        return E.BayesianJFA(max_iter=args.max_iter, **kw)
+    if name == "jfa":
+        return E.JFA(max_iter=args.max_iter, **kw)
+    return {
+        "ols": E.OLS,
+        "ridge": E.Ridge,
+        "tls": E.TLS,
+        "pls": E.PLS,
+        "lasso": E.Lasso,
+        "stepwise": E.Stepwise,
+    }[name](**kw)
+
+
+def _period(text: str):
+    if text in ("auto", "none"):
+        return None if text == "none" else "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto', 'none' or seconds, got {text!r}"
+        ) from None
+
+
+def _skip(text: str):
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or seconds, got {text!r}") from None
+
+
+# ------------------------------------------------------------------------------ identify
+def cmd_identify(args) -> int:
+    import torch
+
+    from .data import prepare, read_log
+    from .pipeline import identify
+    from .report import _verdict, make_report
+    from .sim import regressor_noise
+
+    torch.set_default_dtype(torch.float64)
+    model = load_model(args.robot, args.friction)
+    read = {
+        "columns": _columns(args.columns),
+        "time_scale": args.time_scale,
+        "drop_nan": args.drop_nan,
+    }
+    log = read_log(args.log, **read).reorder(model.joint_names)
+    prep = {
+        "cutoff_hz": args.cutoff,
+        "method": args.filter,
+        "velocity": args.velocity,
+        "period_s": args.period,
+        "skip_start_s": args.skip_start,
+        "decimate": args.decimate,
+    }
+    if args.smoke:  # a quick check of the whole command: the first few seconds only
+        keep = int(torch.searchsorted(log.t, log.t[0] + args.smoke_seconds)) + 1
+        log = log.select(slice(0, min(keep, log.n_samples)))
+    data = prepare(log, **prep)
+    if args.validation_log:
+        vlog = read_log(args.validation_log, **read).reorder(model.joint_names)
+        train, valid = data, prepare(vlog, **{**prep, "skip_start_s": 0.0})
+        split = f"separate log {args.validation_log}"
+    else:
+        # the gap keeps the filter's reach (4 / cutoff s) from linking the two parts
+        gap = int(4.0 / args.cutoff * data.info["rate_hz"])
+        train, valid = data.split(args.validation, gap=gap)
+        split = f"last {args.validation:.0%} of the log, {gap} samples apart"
+    rows = train.n_samples * model.n_dof
+    if rows < model.n_params:
+        raise UsageError(
+            f"{train.n_samples} training samples of {model.n_dof} joints give {rows} equations "
+            f"for {model.n_params} parameters; record a longer log"
+        )
+    pnoise = None
+    if train.period_samples is not None and train.n_samples >= 2 * train.period_samples:
+        pnoise = regressor_noise(model, train)
+    input_noise = None
+    if args.input_noise == "periods":
+        if pnoise is None:
+            raise UsageError(
+                "--input-noise periods needs a periodic excitation with at least two periods "
+                "in the training data; none was found (use --period SECONDS or --input-noise learn)"
+            )
+        input_noise = pnoise.input_noise
+    est = _estimator(args.estimator, args)
+    if input_noise is not None and hasattr(est, "input_noise"):
+        est.input_noise = input_noise
+    started = time.perf_counter()
+    result = identify(
+        model,
+        train,
+        estimator=est,
+        project=not args.no_project,
+        parametrization=args.parametrization,
+        input_noise=input_noise,
+        progress=not args.quiet,
+        jackknife=args.jackknife,
+    )
+    seconds = time.perf_counter() - started
+    info = data.info
+    preparation = (
+        f"{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
+        + (", resampled" if info["resampled"] else "")
+        + f"; {args.filter} cut-off {args.cutoff:g} Hz, velocities {info['velocity']}"
+        + (f"; period {info['period_s']:.6g} s" if info["period_s"] else "; no period")
+        + f"; dropped {info['dropped_start_s']:.3g} s at the start, {info['dropped_end_s']:.3g} s "
+        f"at the end; decimated x{args.decimate} to {info['rate_hz']:.6g} Hz"
+    )
+    settings = {
+        "robot": args.robot,
+        "log": str(args.log),
+        "validation": split,
+        "preparation": preparation,
+        "prepare": {k: v for k, v in prep.items()},
+        "data": {k: v for k, v in info.items()},
+        "identify_seconds": seconds,
+        "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
+    }
+    report = make_report(result, valid, period_noise=pnoise, settings=settings)
+    paths = report.write(args.out, plots=not args.no_plots)
+    fit = report.fits["identified"]
+    print(
+        f"identified {model.n_params} parameters of {args.robot} from {train.n_samples} samples "
+        f"in {seconds:.1f} s; physically consistent: {_verdict(report.consistency)}"
+    )
+    print(
+        f"held-out torque nMSE {fit.mean_nmse:.4g} (per joint: "
+        + ", ".join(f"{j} {float(v):.3g}" for j, v in zip(model.joint_names, fit.nmse, strict=True))
+        + ")"
+    )
+    print(f"report: {paths['markdown']}")
+    return 0
+
+
+# ------------------------------------------------------------------------------ simulate
+def cmd_simulate(args) -> int:
+    from .data import JointLog, write_log
+    from .sim import SensorNoise, generate_log
+
+    base = SensorNoise()
+    s = args.noise_scale
+    noise = SensorNoise(base.position_std * s, base.velocity_std * s, base.torque_std * s)
+    log = generate_log(
+        args.robot,
+        n_samples=args.n_samples,
+        unmodeled=not args.no_unmodeled,
+        noise=noise,
+        seed=args.seed,
+        progress=not args.quiet,
+    )
+    out = Path(args.out)
+    if out.suffix.lower() == ".npz" and args.full:
+        log.save(out)
+    else:
+        kept = JointLog(
+            t=log.t,
+            q=log.q,
+            qd=None if args.no_velocity else log.qd,
+            tau=log.tau,
+            joint_names=log.joint_names,
+        )
+        write_log(kept, out)
+    print(
+        f"wrote {log.n_samples} samples ({log.n_samples / log.control_rate:.1f} s at "
+        f"{log.control_rate:g} Hz) of the simulated {args.robot} to {out}; identify with:\n"
+        f"  torchjfa identify {args.robot} {shlex.quote(str(out))} --out result/"
+    )
+    return 0
+
+
+# ------------------------------------------------------------------------------ evaluate
+def cmd_evaluate(args) -> int:
+    import torch
+
+    from .experiments.robots import evaluate_control
+    from .io import read_identified
+    from .report import torque_errors
+    from .sim import generate_log, random_trajectory
+
+    if not os.path.isfile(args.model):
+        raise UsageError(f"no model file {args.model!r}")
+    ident = read_identified(args.model)
+    model, theta = ident.model, ident.theta
+    log = generate_log(
+        args.robot, n_samples=args.n_samples, seed=args.seed, progress=not args.quiet
+    )
+    try:
+        perm = [log.joint_names.index(j) for j in model.joint_names]
+    except ValueError:
+        raise UsageError(
+            f"the model's joints {model.joint_names} are not the simulated {args.robot}'s "
+            f"{log.joint_names}"
+        ) from None
+    q, qd, qdd, tau = (getattr(log, k + "_true")[:, perm] for k in ("q", "qd", "qdd", "tau"))
+    pred = model.regressor(q, qd, qdd) @ theta
+    nmse, rms = torque_errors(tau, pred)
+    print(f"{args.robot}: torque prediction on a fresh noiseless trajectory (seed {args.seed})")
+    print(f"{'joint':<16} {'nMSE':>10} {'RMS [N m]':>10}")
+    for j, name in enumerate(model.joint_names):
+        print(f"{name:<16} {float(nmse[j]):>10.4g} {float(rms[j]):>10.4g}")
+    print(f"{'mean':<16} {float(nmse.mean()):>10.4g} {float(rms.pow(2).mean().sqrt()):>10.4g}")
+    out = {"nmse": nmse.tolist(), "rms": rms.tolist()}
+    if not args.no_control:
+        from .sim import load_robot
+
+        traj = random_trajectory(load_robot(args.robot), seed=args.seed + 1)
+        res = evaluate_control(
+            args.robot, model, {"identified": theta}, traj, duration=args.control_seconds
+        )["identified"]
+        if res.success:
+            print(
+                f"computed-torque control for {args.control_seconds:g} s: RMS position error "
+                f"{res.mean_rms_position:.4g} rad, RMS feedback {res.mean_rms_feedback:.4g} N m"
+            )
+        else:
+            print(f"computed-torque control FAILED: {res.reason}")
+        out["control"] = {
+            "success": res.success,
+            "reason": res.reason,
+            "rms_position": None if not res.success else res.mean_rms_position,
+        }
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    del torch
+    return 0
+
+
+# ------------------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    from .data import DEFAULT_CUTOFF_HZ
+
+    parser = argparse.ArgumentParser(
+        prog="torchjfa",
+        description="Probabilistic identification of robot dynamics (Bayesian joint factor "
+        "analysis, physically consistent parameters).",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser(
+        "identify",
+        help="identify a robot's parameters from a log and write a report",
+        description="Read a joint log (CSV, NPZ, Parquet), filter and differentiate it, "
+        "identify the rigid-body and friction parameters, project them onto physically "
+        "consistent ones, and write the model, tables, figures and a Markdown report.",
+    )
+    p.add_argument(
+        "robot",
+        help="URDF or MJCF file, or a shipped robot: panda, panda_arm, branched_tree, head, arm",
+    )
+    p.add_argument(
+        "log",
+        help="the log: .csv, .npz or .parquet with columns t, q_<joint>, [qd_<joint>], tau_<joint>",
+    )
+    p.add_argument("--out", default="result", help="output folder (default: result)")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="bayes-jfa")
+    p.add_argument(
+        "--friction",
+        type=_friction,
+        default=("viscous",),
+        help="friction terms per joint, comma separated from viscous,coulomb,offset "
+        "or 'none' (default: viscous)",
+    )
+    p.add_argument(
+        "--columns",
+        default=None,
+        help="map the library's column names to the log's: 't=time,q_j1=pos1' or a "
+        "JSON object or file",
+    )
+    p.add_argument(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="seconds per unit of the time column (1e-9 for ns)",
+    )
+    p.add_argument(
+        "--drop-nan",
+        action="store_true",
+        help="drop rows holding NaN (default: report them and stop)",
+    )
+    p.add_argument(
+        "--cutoff",
+        type=float,
+        default=DEFAULT_CUTOFF_HZ,
+        help=f"low-pass cut-off, Hz (default {DEFAULT_CUTOFF_HZ:g})",
+    )
+    p.add_argument("--filter", choices=("butterworth", "savgol"), default="butterworth")
+    p.add_argument(
+        "--velocity",
+        choices=("auto", "measured", "differentiate"),
+        default="auto",
+        help="use the log's velocities or differentiate positions (default auto)",
+    )
+    p.add_argument(
+        "--period",
+        type=_period,
+        default="auto",
+        help="excitation period in s, 'auto' (detect) or 'none'",
+    )
+    p.add_argument(
+        "--skip-start",
+        type=_skip,
+        default=0.0,
+        help="seconds of start-up transient to drop, or 'auto' (needs a period)",
+    )
+    p.add_argument("--decimate", type=int, default=1, help="keep every k-th sample after filtering")
+    p.add_argument(
+        "--validation",
+        type=float,
+        default=0.2,
+        help="held-out fraction at the end of the log (default 0.2)",
+    )
+    p.add_argument("--validation-log", default=None, help="hold out this log instead")
+    p.add_argument(
+        "--input-noise",
+        choices=("learn", "periods"),
+        default="learn",
+        help="Bayesian JFA: learn the input noise, or fix it to the spread between "
+        "excitation periods",
+    )
+    p.add_argument(
+        "--jackknife",
+        type=int,
+        default=5,
+        help="blocks for the jackknife spread of the parameters (0: off)",
+    )
+    p.add_argument("--parametrization", choices=("virtual", "log-cholesky"), default="virtual")
+    p.add_argument("--no-project", action="store_true", help="skip the physical projection")
+    p.add_argument("--max-iter", type=int, default=20_000, help="EM iterations (JFA, Bayesian JFA)")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--smoke", action="store_true", help="quick check: the first seconds only")
+    p.add_argument("--smoke-seconds", type=float, default=12.0, help=argparse.SUPPRESS)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a robot tracking an excitation and write its log",
+        description="Simulate the Sarcos-like head (7 DoF) or arm (10 DoF) in MuJoCo with "
+        "sensor noise and write a log as a real robot would give it: t, q_<joint>, "
+        "qd_<joint>, tau_<joint> (no accelerations).",
+    )
+    p.add_argument("robot", choices=_SIM_ROBOTS)
+    p.add_argument("--out", required=True, help="output: .csv, .npz or .parquet")
+    p.add_argument("--n-samples", type=int, default=50_000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--noise-scale", type=float, default=1.0, help="x the default sensor noise")
+    p.add_argument(
+        "--no-unmodeled",
+        action="store_true",
+        help="rigid-body dynamics only (no armature, friction, ...)",
+    )
+    p.add_argument("--no-velocity", action="store_true", help="leave out the velocity columns")
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="with .npz: the whole SimulatedLog, ground truth included",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser(
+        "evaluate",
+        help="evaluate an identified model on a simulated robot",
+        description="Predict the torques of a fresh noiseless trajectory of a simulated "
+        "robot and run computed-torque control with the model in MuJoCo.",
+    )
+    p.add_argument("model", help="model.npz written by identify")
+    p.add_argument("--robot", choices=_SIM_ROBOTS, required=True)
+    p.add_argument("--n-samples", type=int, default=8400)
+    p.add_argument("--seed", type=int, default=100)
+    p.add_argument("--no-control", action="store_true", help="skip the control run")
+    p.add_argument("--control-seconds", type=float, default=4.0)
+    p.add_argument("--json", default=None, help="also write the numbers to this JSON file")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_evaluate)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (0 ok, 2 bad input)."""
+    from .data import LogError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.argv = argv
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, LogError, FileNotFoundError) as exc:
+        if args.debug:
+            raise
+        print(f"torchjfa {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _entry() -> None:
+    sys.exit(main())
