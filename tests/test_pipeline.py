@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
-from torchjfa.estimators import OLS, BayesianJFA
+from torchjfa.estimators import OLS, BayesianJFA, Ridge
 from torchjfa.physical import check, project
 from torchjfa.pipeline import IdentificationResult, identify, log_length, stream_moments
 from torchjfa.sim import SimulatedLog, generate_log, model_path
@@ -285,3 +285,27 @@ def test_bad_input_raises(head, files, tmp_path):
     with pytest.raises(ValueError, match=r"samples \[200, 300\)"):
         stream_moments(model, bad, chunk_size=100)
     assert isinstance(SimulatedLog.load(compressed), SimulatedLog)  # the fixture file is valid
+
+
+def test_identify_jackknife_spread_matches_hand_cut_blocks(head, files):
+    """theta_hat_std is the delete-one-block jackknife over K contiguous blocks of the samples
+    (cut by hand here from the in-memory regressor), and the estimator still sees them all."""
+    model, log, Y = head
+    K = 3
+    ridge = Ridge(alpha=1e-3, fit_intercept=False)  # well posed despite the unidentifiable columns
+    result = identify(model, files[1], estimator=ridge, project=False, jackknife=K)
+    bounds = [round(k * N_SAMPLES / K) for k in range(K + 1)]
+    coefs = []
+    for k in range(K):
+        keep = torch.ones(N_SAMPLES, dtype=torch.bool)
+        keep[bounds[k] : bounds[k + 1]] = False
+        m = Moments.from_data(Y[keep].reshape(-1, model.n_params), log.tau[keep].reshape(-1))
+        coefs.append(Ridge(alpha=1e-3, fit_intercept=False).fit_moments(m).coef_)
+    C = torch.stack(coefs)
+    std = ((K - 1) / K * (C - C.mean(0)).pow(2).sum(0)).sqrt()
+    assert rel(result.theta_hat_std, std) <= 1e-6
+    whole = Moments.from_data(Y.reshape(-1, model.n_params), log.tau.reshape(-1))
+    full = Ridge(alpha=1e-3, fit_intercept=False).fit_moments(whole).coef_
+    assert rel(result.theta_hat, full) <= 1e-8
+    with pytest.raises(ValueError, match="jackknife"):
+        identify(model, files[1], estimator=OLS(fit_intercept=False), jackknife=1)

@@ -135,6 +135,16 @@ def _skip(text: str):
 
 
 # ------------------------------------------------------------------------------ identify
+def _enough(n_samples: int, model, where: str) -> None:
+    """At least as many equations (samples x joints) as parameters."""
+    rows = n_samples * model.n_dof
+    if rows < model.n_params:
+        raise UsageError(
+            f"{where} {n_samples} samples: with {model.n_dof} joints that is {rows} equations "
+            f"for {model.n_params} parameters; record a longer log"
+        )
+
+
 def cmd_identify(args) -> int:
     import torch
 
@@ -151,6 +161,7 @@ def cmd_identify(args) -> int:
         "drop_nan": args.drop_nan,
     }
     log = read_log(args.log, **read).reorder(model.joint_names)
+    _enough(log.n_samples, model, "the log has")
     prep = {
         "cutoff_hz": args.cutoff,
         "method": args.filter,
@@ -172,17 +183,22 @@ def cmd_identify(args) -> int:
         gap = int(4.0 / args.cutoff * data.info["rate_hz"])
         train, valid = data.split(args.validation, gap=gap)
         split = f"last {args.validation:.0%} of the log, {gap} samples apart"
-    rows = train.n_samples * model.n_dof
-    if rows < model.n_params:
-        raise UsageError(
-            f"{train.n_samples} training samples of {model.n_dof} joints give {rows} equations "
-            f"for {model.n_params} parameters; record a longer log"
-        )
+    _enough(train.n_samples, model, "after filtering and the validation split, training has")
     pnoise = None
     if train.period_samples is not None and train.n_samples >= 2 * train.period_samples:
         pnoise = regressor_noise(model, train)
     input_noise = None
-    if args.input_noise == "periods":
+    mode = args.input_noise
+    if mode == "auto":
+        mode = "periods" if pnoise is not None else "learn"
+        if mode == "learn" and args.estimator == "bayes-jfa":
+            print(
+                "warning: no periodic excitation found, so Bayesian JFA learns the input noise; "
+                "its noiseless-input estimate (eq. 4) is then not identified by the data (see "
+                "docs/report.md): compare with --estimator ols",
+                file=sys.stderr,
+            )
+    if mode == "periods":
         if pnoise is None:
             raise UsageError(
                 "--input-noise periods needs a periodic excitation with at least two periods "
@@ -221,6 +237,7 @@ def cmd_identify(args) -> int:
         "prepare": {k: v for k, v in prep.items()},
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,
+        "input_noise": mode,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
     }
     report = make_report(result, valid, period_noise=pnoise, settings=settings)
@@ -235,6 +252,13 @@ def cmd_identify(args) -> int:
         + ", ".join(f"{j} {float(v):.3g}" for j, v in zip(model.joint_names, fit.nmse, strict=True))
         + ")"
     )
+    if not getattr(result.estimator, "converged_", True):
+        print(
+            f"warning: {type(result.estimator).__name__} stopped at --max-iter {args.max_iter} "
+            f"before its stopping rule held ({result.estimator.stop_reason_}); compare the "
+            "held-out errors with --estimator ols, or raise --max-iter",
+            file=sys.stderr,
+        )
     print(f"report: {paths['markdown']}")
     return 0
 
@@ -420,10 +444,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--validation-log", default=None, help="hold out this log instead")
     p.add_argument(
         "--input-noise",
-        choices=("learn", "periods"),
-        default="learn",
-        help="Bayesian JFA: learn the input noise, or fix it to the spread between "
-        "excitation periods",
+        choices=("auto", "learn", "periods"),
+        default="auto",
+        help="Bayesian JFA's input noise: fixed to the spread between excitation periods "
+        "('periods'), learned ('learn': the seed's estimator, whose eq. 4 the data do not "
+        "identify), or 'auto' (default): periods when the training data hold two or more",
     )
     p.add_argument(
         "--jackknife",

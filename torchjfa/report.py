@@ -82,6 +82,20 @@ def _numbers(v) -> list:
     return out
 
 
+def _figure(path, rows: int, **kw):
+    """A figure with ``rows`` stacked axes: through pyplot for display, or, when it is only
+    saved to ``path``, a bare `matplotlib.figure.Figure` (pyplot's backend is left alone, so
+    inline figures in a notebook keep working)."""
+    if path is None:
+        import matplotlib.pyplot as plt
+
+        return plt.subplots(rows, 1, squeeze=False, **kw)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=kw.pop("figsize"))
+    return fig, fig.subplots(rows, 1, squeeze=False, **kw)
+
+
 def _verdict(c: ConsistencyReport) -> str:
     if c.ok:
         return "yes (fully: pseudo-inertia positive definite)"
@@ -153,6 +167,8 @@ class IdentificationReport:
             "train_samples": r.n_samples,
             "validation_samples": self.validation.n_samples,
             "train_rmse": r.rmse(),
+            "converged": bool(getattr(r.estimator, "converged_", True)),
+            "stop_reason": getattr(r.estimator, "stop_reason_", None),
             "validation": {
                 name: {"nmse": _numbers(f.nmse), "rms": _numbers(f.rms), "mean_nmse": f.mean_nmse}
                 for name, f in self.fits.items()
@@ -169,20 +185,12 @@ class IdentificationReport:
     # ------------------------------------------------------------------------- figures
     def plot_torques(self, path=None, *, seconds: float | None = 10.0):
         """Measured and predicted held-out torque per joint (the first ``seconds``)."""
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-
         log = self.validation
         t = (log.t - log.t[0]).numpy()
         n = log.n_samples if seconds is None else int(np.searchsorted(t, seconds, side="right"))
         n = max(n, 2)
         n_dof = log.n_dof
-        fig, axes = plt.subplots(
-            n_dof, 1, figsize=(9, 1.7 * n_dof + 0.6), sharex=True, squeeze=False
-        )
+        fig, axes = _figure(path, n_dof, figsize=(9, 1.7 * n_dof + 0.6), sharex=True)
         styles = {
             "identified": {"color": "C1", "lw": 1.2},
             "unconstrained": {"color": "C2", "lw": 0.9, "ls": "--"},
@@ -200,17 +208,10 @@ class IdentificationReport:
         fig.tight_layout()
         if path is not None:
             fig.savefig(path, dpi=110)
-            plt.close(fig)
         return fig
 
     def plot_parameters(self, path=None):
         """Per parameter: |value| over its jackknife spread, and the relevance when known."""
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-
         rows = self.parameter_rows()
         names = [r["parameter"] for r in rows]
         x = np.arange(len(rows))
@@ -221,14 +222,13 @@ class IdentificationReport:
                 for r in rows
             ]
             panels.append(("|unconstrained| / jackknife std", ratio, 2.0))
-        if rows and rows[0]["relevance"] is not None:
+        if any(r["relevance"] is not None for r in rows):
             rel = [np.nan if r["relevance"] is None else r["relevance"] for r in rows]
             panels.append(("relevance <alpha> (large: irrelevant)", rel, None))
         if not panels:
             panels.append(("|identified|", [abs(r["identified"]) for r in rows], None))
-        fig, axes = plt.subplots(
-            len(panels), 1, figsize=(max(8, 0.12 * len(rows)), 2.6 * len(panels)), squeeze=False
-        )
+        width = max(8, 0.12 * len(rows))
+        fig, axes = _figure(path, len(panels), figsize=(width, 2.6 * len(panels)))
         for ax, (title, vals, line) in zip(axes[:, 0], panels, strict=True):
             vals = np.asarray(vals, dtype=float)
             ax.bar(x, np.where(np.isfinite(vals) & (vals > 0), vals, np.nan), color="C0")
@@ -241,7 +241,6 @@ class IdentificationReport:
         fig.tight_layout()
         if path is not None:
             fig.savefig(path, dpi=110)
-            plt.close(fig)
         return fig
 
     # ------------------------------------------------------------------------- writing
@@ -250,15 +249,24 @@ class IdentificationReport:
         s = self.summary()
         joints = self.model.joint_names
         lines = [
-            f"# Identification report: {s['robot']}",
+            f"# Identification report: {s['robot'] or Path(self.model.source_path or 'robot').name}",
             "",
-            f"- log: `{self.settings.get('log')}`; {s['train_samples']} samples for "
-            f"identification, {s['validation_samples']} held out "
-            f"({self.settings.get('validation')})",
-            f"- data: {self.settings.get('preparation')}",
+            f"- log: `{self.settings.get('log', '-')}`; {s['train_samples']} samples for "
+            f"identification, {s['validation_samples']} held out"
+            + (f" ({self.settings['validation']})" if self.settings.get("validation") else ""),
+            *(
+                [f"- data: {self.settings['preparation']}"]
+                if self.settings.get("preparation")
+                else []
+            ),
             f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
             f"{', '.join(self.model.friction) or 'none'}",
-            f"- estimator: `{s['estimator']}`",
+            f"- estimator: `{s['estimator']}`"
+            + (
+                ""
+                if s["converged"]
+                else f" **did not converge** ({s['stop_reason']}): raise --max-iter"
+            ),
             f"- physically consistent, identified: {_verdict(self.consistency)}; "
             f"unconstrained estimate: {_verdict(self.consistency_unconstrained)}",
             f"- training RMS torque error: {s['train_rmse']:.4g} N m",

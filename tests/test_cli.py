@@ -1,0 +1,221 @@
+"""The torchjfa command: end to end on a simulated CSV log, and every bad input it must name."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from torchjfa.cli import main
+from torchjfa.data import read_log, write_log
+from torchjfa.io import load_identified, read_identified
+from torchjfa.report import torque_errors
+
+FAST = ["--quiet", "--max-iter", "300", "--jackknife", "2", "--no-plots"]
+
+
+@pytest.fixture(scope="module")
+def head_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("logs") / "head.csv"
+    assert main(["simulate", "head", "--out", str(path), "--n-samples", "5040", "--quiet"]) == 0
+    return path
+
+
+def _identify(capsys, *args):
+    code = main(["identify", *map(str, args)])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_identify_end_to_end_smoke(head_csv, tmp_path, capsys):
+    out = tmp_path / "result"
+    code, stdout, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "2",
+        "--friction", "viscous,coulomb",
+    )  # fmt: skip
+    assert code == 0, err
+    for name in ("model.npz", "validation.npz", "parameters.csv", "report.json", "report.md"):
+        assert (out / name).stat().st_size > 0
+    for name in ("torques.png", "parameters.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    report = json.loads((out / "report.json").read_text())
+    # the written model loads and predicts the torques the report says it does
+    idyn = load_identified(out / "model.npz")
+    assert idyn.model.friction == ("viscous", "coulomb")
+    with np.load(out / "validation.npz") as z:
+        names = tuple(str(s) for s in z["joint_names"])
+        assert names == idyn.model.joint_names
+        q, qd, qdd, tau = (torch.from_numpy(z[k]) for k in ("q", "qd", "qdd", "tau"))
+    nmse, rms = torque_errors(tau, idyn(q, qd, qdd).detach())
+    np.testing.assert_allclose(nmse.numpy(), report["validation"]["identified"]["nmse"], rtol=1e-9)
+    np.testing.assert_allclose(rms.numpy(), report["validation"]["identified"]["rms"], rtol=1e-9)
+    assert f"{report['validation']['identified']['mean_nmse']:.4g}" in stdout
+    # the identified model predicts held-out torques, and on the neck joints (torques well
+    # above the sensor noise) better than the description, which lacks the simulated robot's
+    # friction and armature
+    assert report["validation"]["identified"]["mean_nmse"] < 0.6
+    neck = slice(0, 3)
+    assert report["joint_names"][neck] == ["neck_pan", "neck_tilt", "neck_roll"]
+    ident = np.array(report["validation"]["identified"]["nmse"][neck])
+    assert (ident < np.array(report["validation"]["description"]["nmse"][neck])).all()
+    assert report["stop_reason"] is not None
+    # the projection made the parameters consistent in the sense of eq. 5
+    assert report["consistent_weakly"]
+    # the parameter table: every parameter, with spread and relevance from Bayesian JFA
+    params = report["parameters"]
+    assert [p["parameter"] for p in params] == list(idyn.model.parameter_names)
+    assert all(p["jackknife_std"] is not None and p["jackknife_std"] >= 0 for p in params)
+    assert any(p["relevance"] is not None for p in params)
+    md = (out / "report.md").read_text()
+    for joint in idyn.model.joint_names:
+        assert f"| {joint} |" in md
+    assert "torchjfa identify head" in md
+    extras = read_identified(out / "model.npz").extras
+    np.testing.assert_allclose(
+        extras["validation_nmse"], report["validation"]["identified"]["nmse"]
+    )
+
+
+def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys):
+    vpath = tmp_path / "valid.parquet"
+    assert (
+        main(
+            [
+                "simulate",
+                "head",
+                "--out",
+                str(vpath),
+                "--n-samples",
+                "2520",
+                "--seed",
+                "7",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    out = tmp_path / "r"
+    code, _, err = _identify(
+        capsys,
+        "head",
+        head_csv,
+        "--validation-log",
+        vpath,
+        "--estimator",
+        "ols",
+        "--out",
+        out,
+        *FAST,
+    )
+    assert code == 0, err
+    report = json.loads((out / "report.json").read_text())
+    assert "separate log" in report["settings"]["validation"]
+    assert all(p["relevance"] is None for p in report["parameters"])
+    assert report["validation_samples"] < 2520
+
+
+@pytest.fixture()
+def columns(head_csv):
+    log = read_log(head_csv)
+    return log, log.to_columns()
+
+
+def _write(path, cols):
+    names = list(cols)
+    np.savetxt(path, np.column_stack([cols[c] for c in names]), delimiter=",",
+               header=",".join(names), comments="", fmt="%.17g")  # fmt: skip
+    return path
+
+
+def test_missing_column(columns, tmp_path, capsys):
+    _, cols = columns
+    del cols["tau_neck_roll"]
+    code, out, err = _identify(capsys, "head", _write(tmp_path / "m.csv", cols), *FAST)
+    assert code == 2
+    assert "missing column 'tau_neck_roll'" in err and "Traceback" not in err
+
+
+def test_joint_the_robot_does_not_have(columns, tmp_path, capsys):
+    _, cols = columns
+    for kind in ("q", "qd", "tau"):
+        cols[f"{kind}_jaw"] = cols[f"{kind}_neck_pan"]
+    code, _, err = _identify(capsys, "head", _write(tmp_path / "j.csv", cols), *FAST)
+    assert code == 2
+    assert "['jaw'] are in the log but the robot has no joint" in err
+
+
+def test_nan_rows_reported_and_dropped_on_request(columns, tmp_path, capsys):
+    _, cols = columns
+    cols["q_neck_tilt"] = cols["q_neck_tilt"].copy()
+    cols["q_neck_tilt"][[10, 400]] = np.nan
+    path = _write(tmp_path / "n.csv", cols)
+    code, _, err = _identify(capsys, "head", path, *FAST)
+    assert code == 2
+    assert "2 of 5040 rows hold NaN or inf (rows 10, 400, counting" in err and "--drop-nan" in err
+    code, _, err = _identify(capsys, "head", path, "--drop-nan", "--out", tmp_path / "o", *FAST)
+    assert code == 0, err
+
+
+def test_time_going_backwards(columns, tmp_path, capsys):
+    _, cols = columns
+    cols["t"] = cols["t"].copy()
+    cols["t"][[100, 101]] = cols["t"][[101, 100]]
+    code, _, err = _identify(capsys, "head", _write(tmp_path / "t.csv", cols), *FAST)
+    assert code == 2
+    assert "time must increase strictly, but at row 101" in err
+
+
+def test_too_few_samples_for_the_parameters(columns, tmp_path, capsys):
+    log, _ = columns
+    short = log.select(slice(0, 10))  # 10 samples x 7 joints = 70 equations < 77 parameters
+    path = tmp_path / "short.csv"
+    write_log(short, path)
+    code, _, err = _identify(capsys, "head", path, *FAST)
+    assert code == 2
+    assert "70 equations for 77 parameters" in err
+
+
+def test_robot_file_that_does_not_parse(head_csv, tmp_path, capsys):
+    bad = tmp_path / "broken.urdf"
+    bad.write_text("<robot name='x'><link name='a'><inertial></link>")
+    code, _, err = _identify(capsys, bad, head_csv, *FAST)
+    assert code == 2
+    assert "cannot build a robot model from" in err and "Traceback" not in err
+    code, _, err = _identify(capsys, tmp_path / "nowhere.urdf", head_csv, *FAST)
+    assert code == 2 and "no robot file" in err
+
+
+def test_installed_command_help_and_clean_error(tmp_path):
+    """The console script is installed, every command has --help, errors carry no traceback."""
+    exe = shutil.which("torchjfa")
+    cmd = [exe] if exe else [sys.executable, "-m", "torchjfa"]
+    for sub in ([], ["identify"], ["simulate"], ["evaluate"]):
+        res = subprocess.run([*cmd, *sub, "--help"], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0 and "usage: torchjfa" in res.stdout
+    missing = tmp_path / "nope.csv"
+    res = subprocess.run(
+        [*cmd, "identify", "head", str(missing)], capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 2
+    assert "no log file" in res.stderr and "Traceback" not in res.stderr
+    assert exe is not None, "pip install did not put the torchjfa command on PATH"
+
+
+def test_evaluate_prints_per_joint_errors(tmp_path, capsys, head_csv):
+    out = tmp_path / "r"
+    code, _, err = _identify(capsys, "head", head_csv, "--out", out, *FAST)
+    assert code == 0, err
+    js = tmp_path / "eval.json"
+    code = main(["evaluate", str(out / "model.npz"), "--robot", "head", "--n-samples", "2000",
+                 "--control-seconds", "1", "--json", str(js), "--quiet"])  # fmt: skip
+    text = capsys.readouterr().out
+    assert code == 0
+    res = json.loads(js.read_text())
+    assert len(res["nmse"]) == 7 and all(np.isfinite(res["nmse"]))
+    assert "neck_pan" in text and "computed-torque control" in text
+    code = main(["evaluate", str(out / "model.npz"), "--robot", "arm", "--quiet", "--no-control"])
+    assert code == 2
+    assert "are not the simulated arm's" in capsys.readouterr().err
