@@ -27,7 +27,9 @@ def test_torque_errors_by_hand():
 def report():
     model = RigidBodyModel.from_mjcf(model_path("head"))
     sim = generate_log("head", n_samples=3000, seed=5)
-    log = JointLog(t=sim.t, q=sim.q, qd=sim.qd, qdd=sim.qdd, tau=sim.tau, joint_names=sim.joint_names)
+    log = JointLog(
+        t=sim.t, q=sim.q, qd=sim.qd, qdd=sim.qdd, tau=sim.tau, joint_names=sim.joint_names
+    )
     train, valid = log.split(0.25)
     est = BayesianJFA(fit_intercept=False, max_iter=2000)
     result = identify(model, train, estimator=est, jackknife=3)
