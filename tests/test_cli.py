@@ -62,6 +62,10 @@ def test_identify_end_to_end_smoke(head_csv, tmp_path, capsys):
     ident = np.array(report["validation"]["identified"]["nmse"][neck])
     assert (ident < np.array(report["validation"]["description"]["nmse"][neck])).all()
     assert report["stop_reason"] is not None
+    # each joint's equations weighted by its inverse residual variance (the default)
+    weights = report["noise"]["joint weights (weighted least squares, mean 1)"]
+    assert len(weights) == 7 and np.mean(weights) == pytest.approx(1.0)
+    assert report["settings"]["weighting"] == "residual"
     # the projection made the parameters consistent in the sense of eq. 5
     assert report["consistent_weakly"]
     # the parameter table: every parameter, with spread and relevance from Bayesian JFA
@@ -108,6 +112,8 @@ def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys)
         "ols",
         "--out",
         out,
+        "--weighting",
+        "none",
         *FAST,
     )
     assert code == 0, err
@@ -115,6 +121,7 @@ def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys)
     assert "separate log" in report["settings"]["validation"]
     assert all(p["relevance"] is None for p in report["parameters"])
     assert report["validation_samples"] < 2520
+    assert "joint weights (weighted least squares, mean 1)" not in report["noise"]
 
 
 @pytest.fixture()

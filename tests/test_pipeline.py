@@ -14,7 +14,13 @@ import torch
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA, Ridge
 from torchjfa.physical import check, project
-from torchjfa.pipeline import IdentificationResult, identify, log_length, stream_moments
+from torchjfa.pipeline import (
+    IdentificationResult,
+    identify,
+    log_length,
+    residual_joint_weights,
+    stream_moments,
+)
 from torchjfa.sim import SimulatedLog, generate_log, model_path
 from torchjfa.stats import Moments
 
@@ -309,3 +315,35 @@ def test_identify_jackknife_spread_matches_hand_cut_blocks(head, files):
     assert rel(result.theta_hat, full) <= 1e-8
     with pytest.raises(ValueError, match="jackknife"):
         identify(model, files[1], estimator=OLS(fit_intercept=False), jackknife=1)
+
+
+def test_joint_weights_weight_each_joints_rows(head, files):
+    model, log, Y = head
+    w = torch.tensor([0.5, 2.0, 1.0, 3.0, 0.25, 1.0, 0.25], dtype=torch.float64)
+    got = stream_moments(model, files[1], joint_weights=w, chunk_size=256)
+    rows = w.repeat(N_SAMPLES)  # row (sample i, joint j) has weight w_j
+    ref = Moments.from_data(Y.reshape(-1, model.n_params), log.tau.reshape(-1), rows)
+    assert_moments_equal(got, ref)
+    parts = stream_moments(model, files[1], per_joint=True, chunk_size=256)
+    assert len(parts) == model.n_dof
+    for j, part in enumerate(parts):
+        assert_moments_equal(part, Moments.from_data(Y[:, j], log.tau[:, j]))
+    with pytest.raises(ValueError, match="joint_weights"):
+        stream_moments(model, files[1], joint_weights=-w)
+
+
+def test_residual_joint_weights_are_inverse_ols_residual_variances(head, files):
+    model, log, Y = head
+    w = residual_joint_weights(model, files[1])
+    X = Y.reshape(-1, model.n_params).numpy()
+    theta = np.linalg.lstsq(X, log.tau.reshape(-1).numpy(), rcond=None)[0]
+    res = log.tau.numpy() - (Y.numpy() @ theta)
+    inv = 1.0 / (res**2).mean(0)
+    # the head's regressor is rank deficient: the normal-equation solve and lstsq's minimum-norm
+    # solution leave residuals that differ by ~0.1 %
+    np.testing.assert_allclose(w.numpy(), inv / inv.mean(), rtol=5e-3)
+    assert float(w.mean()) == pytest.approx(1.0)
+    result = identify(
+        model, files[1], estimator=OLS(fit_intercept=False), joint_weights=w, project=False
+    )
+    torch.testing.assert_close(result.joint_weights, w)

@@ -149,7 +149,7 @@ def cmd_identify(args) -> int:
     import torch
 
     from .data import prepare, read_log
-    from .pipeline import identify
+    from .pipeline import identify, residual_joint_weights
     from .report import _verdict, make_report
     from .sim import regressor_noise
 
@@ -184,9 +184,12 @@ def cmd_identify(args) -> int:
         train, valid = data.split(args.validation, gap=gap)
         split = f"last {args.validation:.0%} of the log, {gap} samples apart"
     _enough(train.n_samples, model, "after filtering and the validation split, training has")
+    weights = None
+    if args.weighting == "residual":
+        weights = residual_joint_weights(model, train)
     pnoise = None
     if train.period_samples is not None and train.n_samples >= 2 * train.period_samples:
-        pnoise = regressor_noise(model, train)
+        pnoise = regressor_noise(model, train, joint_weights=weights)
     input_noise = None
     mode = args.input_noise
     if mode == "auto":
@@ -218,6 +221,7 @@ def cmd_identify(args) -> int:
         input_noise=input_noise,
         progress=not args.quiet,
         jackknife=args.jackknife,
+        joint_weights=weights,
     )
     seconds = time.perf_counter() - started
     info = data.info
@@ -238,6 +242,7 @@ def cmd_identify(args) -> int:
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,
         "input_noise": mode,
+        "weighting": args.weighting,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
     }
     report = make_report(result, valid, period_noise=pnoise, settings=settings)
@@ -455,6 +460,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=5,
         help="blocks for the jackknife spread of the parameters (0: off)",
+    )
+    p.add_argument(
+        "--weighting",
+        choices=("residual", "none"),
+        default="residual",
+        help="weight each joint's equations by its inverse residual variance from a first "
+        "least-squares fit (weighted least squares, default), or not at all",
     )
     p.add_argument("--parametrization", choices=("virtual", "log-cholesky"), default="virtual")
     p.add_argument("--no-project", action="store_true", help="skip the physical projection")

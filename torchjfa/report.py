@@ -429,7 +429,11 @@ def make_report(
     est = result.estimator
     if hasattr(est, "noise_y_"):
         noise["estimator output noise std, N m"] = math.sqrt(max(float(est.noise_y_), 0.0))
-    noise["training residual RMS, N m"] = result.rmse()
+    if result.joint_weights is None:
+        noise["training residual RMS, N m"] = result.rmse()
+    else:
+        noise["joint weights (weighted least squares, mean 1)"] = _numbers(result.joint_weights)
+        noise["training residual RMS of the weighted equations"] = result.rmse()
     if period_noise is not None:
         noise["excitation periods used"] = int(period_noise.n_periods)
         for k, unit in (("q", "rad"), ("qd", "rad/s"), ("qdd", "rad/s^2")):

@@ -176,3 +176,26 @@ def test_noise_from_repeated_periods_recovers_injected_noise():
     assert est0.output_noise.item() < 1e-12
     with pytest.raises(ValueError, match="two periods"):
         regressor_noise(model, generate_log("head", n_samples=100, seed=0))
+
+
+def test_regressor_noise_with_joint_weights_is_that_of_the_weighted_rows():
+    from torchjfa.dynamics import RigidBodyModel
+    from torchjfa.sim import model_path, regressor_noise
+
+    model = RigidBodyModel.from_mjcf(model_path("head"))
+    log = generate_log("head", n_samples=3 * 1680, seed=2)
+    plain = regressor_noise(model, log)
+    torch.testing.assert_close(
+        regressor_noise(model, log, joint_weights=torch.ones(7, dtype=torch.float64)).input_noise,
+        plain.input_noise,
+    )
+    # weight one joint only: its rows' share of the per-column noise, scaled
+    for j in (0, 4):
+        w = torch.zeros(7, dtype=torch.float64)
+        w[j] = 7.0
+        one = regressor_noise(model, log, joint_weights=w).input_noise
+        P = log.period_samples
+        Y = torch.stack([model.regressor(log.q[k * P : (k + 1) * P], log.qd[k * P : (k + 1) * P],
+                                         log.qdd[k * P : (k + 1) * P])[:, j] for k in range(3)])  # fmt: skip
+        ref = Y.var(dim=0, correction=1).mean(0)  # (n_params,): joint j's rows alone
+        torch.testing.assert_close(one, ref)

@@ -58,7 +58,12 @@ def _permutation(model_names, log_names) -> list[int]:
 
 
 def regressor_noise(
-    model, log: SimulatedLog, *, max_periods: int | None = None, progress: bool = False
+    model,
+    log: SimulatedLog,
+    *,
+    max_periods: int | None = None,
+    progress: bool = False,
+    joint_weights=None,
 ) -> PeriodNoise:
     """Estimate the regressor's per-column input noise and the torque noise of a log.
 
@@ -69,6 +74,9 @@ def regressor_noise(
             ``joint_names`` and ``period_samples``) whose first sample starts a period.
         max_periods: use at most this many whole periods (default all).
         progress: show a progress bar over the periods.
+        joint_weights: ``(n_dof,)`` weights of each joint's equations (model order) when the
+            regression is weighted (`torchjfa.pipeline.identify`'s ``joint_weights``): the
+            input noise is then that of the weighted rows.
 
     Returns:
         A `PeriodNoise`; the unbiased variance across periods (divisor ``n_periods - 1``).
@@ -108,7 +116,13 @@ def regressor_noise(
                 mean += delta / (k + 1)
                 M2 += delta * (Y - mean)
             bar.update(1)
-    input_noise = (M2 / (n_per - 1)).mean(dim=(0, 1))
+    var = M2 / (n_per - 1)  # (P, n_dof, n_params)
+    if joint_weights is not None:
+        w = torch.as_tensor(joint_weights, dtype=torch.float64)
+        if tuple(w.shape) != (n_dof,):
+            raise ValueError(f"joint_weights must have shape ({n_dof},), got {tuple(w.shape)}")
+        var = var * w[None, :, None]
+    input_noise = var.mean(dim=(0, 1))
     tau_var = tau.var(dim=0, correction=1).mean(dim=0)
     signal = {
         name: v.var(dim=0, correction=1).mean(dim=0)
