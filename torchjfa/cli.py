@@ -153,7 +153,6 @@ def cmd_identify(args) -> int:
     from .report import _verdict, make_report
     from .sim import regressor_noise
 
-    torch.set_default_dtype(torch.float64)
     model = load_model(args.robot, args.friction)
     read = {
         "columns": _columns(args.columns),
@@ -306,8 +305,6 @@ def cmd_simulate(args) -> int:
 
 # ------------------------------------------------------------------------------ evaluate
 def cmd_evaluate(args) -> int:
-    import torch
-
     from .experiments.robots import evaluate_control
     from .io import read_identified
     from .report import torque_errors
@@ -357,7 +354,6 @@ def cmd_evaluate(args) -> int:
         }
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
-    del torch
     return 0
 
 
