@@ -31,6 +31,7 @@ def run(
     test_duration: float | None = None,
     seed: int = 0,
     out: Path = Path("results/robots"),
+    weighting: str = "none",
     progress: bool = True,
 ) -> dict:
     """Run the experiment, print the tables and the goal check, write CSV / JSON / PNG."""
@@ -42,6 +43,7 @@ def run(
         test_duration=test_duration,
         seed=seed,
         progress=progress,
+        weighting=weighting,
     )
     wall = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
@@ -93,6 +95,12 @@ if __name__ == "__main__":
     parser.add_argument("--n-samples", type=int, default=None, help="training samples per robot")
     parser.add_argument("--test-duration", type=float, default=None, help="control run, s")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--weighting",
+        choices=["none", "residual"],
+        default="none",
+        help="weight each joint's equations by its inverse OLS residual variance",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/robots"))
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args()
@@ -103,5 +111,6 @@ if __name__ == "__main__":
         test_duration=args.test_duration,
         seed=args.seed,
         out=args.out,
+        weighting=args.weighting,
         progress=not args.quiet,
     )

@@ -158,3 +158,22 @@ def test_bad_arguments_raise():
         robots.identify(model, folds, methods=("bjfa-noise",))
     with pytest.raises(TypeError, match="folds"):
         robots.identify(model, folds[:1])
+
+
+def test_weighted_run_uses_weighted_fold_moments(tmp_path, monkeypatch):
+    """weighting='residual': the folds are the weighted moments of contiguous blocks."""
+    monkeypatch.chdir(tmp_path)
+    kw = {"n_samples": 1260, "methods": ("ridge",), "base_frequency": 1.0, "test_duration": 0.25,
+          "control": False, "noise_periods": None, "n_blocks": 3}  # fmt: skip
+    res = robots.run_robot("head", weighting="residual", **kw)
+    w = torch.tensor(res.settings["joint_weights"], dtype=torch.float64)
+    assert w.shape == (7,) and float(w.mean()) == pytest.approx(1.0)
+    assert float(w.max() / w.min()) > 2.0  # the joints' residuals differ
+    plain = robots.run_robot("head", **kw)
+    assert plain.settings["joint_weights"] is None
+    # same data, same estimator: only the weights differ, and they change the estimate
+    est_w = res.identified["ridge"].theta_hat
+    est_p = plain.identified["ridge"].theta_hat
+    assert not torch.allclose(est_w, est_p)
+    with pytest.raises(ValueError, match="weighting"):
+        robots.run_robot("head", weighting="gautier", **kw)

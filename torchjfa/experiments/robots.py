@@ -44,6 +44,7 @@ from .._progress import progress_bar
 from ..dynamics import InverseDynamics, RigidBodyModel
 from ..estimators import BayesianJFA, Lasso, Ridge, Stepwise
 from ..physical import check, project
+from ..pipeline import residual_joint_weights, stream_moments
 from ..sim import (
     DEFAULT_RATES,
     ControlResult,
@@ -342,6 +343,7 @@ def run_robot(
     n_blocks: int = 5,
     seed: int = 0,
     options: Mapping | None = None,
+    weighting: str = "none",
     progress: bool = False,
 ) -> RobotResult:
     """The whole experiment for one robot (see the module docstring).
@@ -361,6 +363,10 @@ def run_robot(
         n_blocks: contiguous blocks of the training log (LASSO's CV folds).
         seed: seeds the training excitation and noise; the test trajectory uses ``seed + 1000``.
         options: passed to `identify`.
+        weighting: ``"none"`` (every equation weight 1, the paper's setting) or
+            ``"residual"``: each joint's equations weighted by its inverse residual variance
+            after a first OLS fit (`torchjfa.pipeline.residual_joint_weights`); the input noise
+            is then that of the weighted rows.
         progress: show progress bars.
 
     Returns:
@@ -368,6 +374,8 @@ def run_robot(
     """
     if signals not in _SIGNALS:
         raise ValueError(f"signals must be one of {tuple(_SIGNALS)}, got {signals!r}")
+    if weighting not in ("none", "residual"):
+        raise ValueError(f"weighting must be 'none' or 'residual', got {weighting!r}")
     noise = SensorNoise() if noise is None else noise
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -389,9 +397,19 @@ def run_robot(
     model = RigidBodyModel.from_mjcf(model_path(robot))
     perm = [log.joint_names.index(j) for j in model.joint_names]
     sig = [getattr(log, k)[:, perm] for k in _SIGNALS[signals]]
-    folds = block_moments(model, *sig, n_blocks=n_blocks, progress=progress)
+    weights = None
+    if weighting == "residual":
+        arrays = dict(zip(("q", "qd", "qdd", "tau"), sig, strict=True))
+        weights = residual_joint_weights(model, arrays, progress=progress)
+        folds = stream_moments(
+            model, arrays, n_folds=n_blocks, joint_weights=weights, progress=progress
+        )
+    else:
+        folds = block_moments(model, *sig, n_blocks=n_blocks, progress=progress)
     lap("moments")
-    period_noise = regressor_noise(model, log, max_periods=noise_periods, progress=progress)
+    period_noise = regressor_noise(
+        model, log, max_periods=noise_periods, progress=progress, joint_weights=weights
+    )
     lap("noise")
     found = identify(
         model,
@@ -445,7 +463,8 @@ def run_robot(
         "n_params": model.n_params, "signals": signals, "unmodeled": unmodeled is not False,
         "noise": [noise.position_std, noise.velocity_std, noise.torque_std],
         "base_frequency": base_frequency, "test_duration": test_duration, "seed": seed,
-        "noise_periods": period_noise.n_periods, "n_blocks": n_blocks,
+        "noise_periods": period_noise.n_periods, "n_blocks": n_blocks, "weighting": weighting,
+        "joint_weights": None if weights is None else weights.tolist(),
     }  # fmt: skip
     return RobotResult(robot, rows, found, ctrl, period_noise, settings, timings)
 
