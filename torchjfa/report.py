@@ -67,9 +67,18 @@ def torque_errors(tau, predicted) -> tuple[torch.Tensor, torch.Tensor]:
     return mse / tau.var(0, correction=0), mse.sqrt()
 
 
-def _fit(result: IdentificationResult, log: JointLog, theta: torch.Tensor) -> TorqueFit:
-    Y = result.model.regressor(log.q, log.qd, log.qdd)
-    pred = Y @ theta.to(Y)
+def _fit(
+    result: IdentificationResult, log: JointLog, theta: torch.Tensor, chunk: int = 4096
+) -> TorqueFit:
+    """Predictions ``Y theta`` chunk by chunk (memory ``O(chunk * n_dof * n_params)``)."""
+    model = result.model
+    pred = torch.cat(
+        [
+            model.regressor(log.q[a : a + chunk], log.qd[a : a + chunk], log.qdd[a : a + chunk])
+            @ theta.to(torch.float64)
+            for a in range(0, log.n_samples, chunk)
+        ]
+    )
     nmse, rms = torque_errors(log.tau, pred)
     return TorqueFit(nmse=nmse, rms=rms, predicted=pred)
 
