@@ -21,11 +21,13 @@ import sys
 import time
 from pathlib import Path
 
+from .sim import ROBOTS
+
 __all__ = ["main", "ESTIMATORS"]
 
 ESTIMATORS = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
 _FRICTION = ("viscous", "coulomb", "offset")
-_SIM_ROBOTS = ("head", "arm")
+_SIM_ROBOTS = tuple(ROBOTS)  # the simulated robots
 
 
 class UsageError(Exception):
@@ -272,9 +274,7 @@ def cmd_simulate(args) -> int:
     from .data import JointLog, write_log
     from .sim import SensorNoise, generate_log
 
-    base = SensorNoise()
-    s = args.noise_scale
-    noise = SensorNoise(base.position_std * s, base.velocity_std * s, base.torque_std * s)
+    noise = SensorNoise().scaled(args.noise_scale)
     log = generate_log(
         args.robot,
         n_samples=args.n_samples,
@@ -307,7 +307,7 @@ def cmd_simulate(args) -> int:
 def cmd_evaluate(args) -> int:
     from .experiments.robots import evaluate_control
     from .io import read_identified
-    from .report import torque_errors
+    from .report import predicted_torques, torque_errors
     from .sim import generate_log, random_trajectory
 
     if not os.path.isfile(args.model):
@@ -325,7 +325,7 @@ def cmd_evaluate(args) -> int:
             f"{log.joint_names}"
         ) from None
     q, qd, qdd, tau = (getattr(log, k + "_true")[:, perm] for k in ("q", "qd", "qdd", "tau"))
-    pred = model.regressor(q, qd, qdd) @ theta
+    pred = predicted_torques(model, theta, q, qd, qdd, tau)
     nmse, rms = torque_errors(tau, pred)
     print(f"{args.robot}: torque prediction on a fresh noiseless trajectory (seed {args.seed})")
     print(f"{'joint':<16} {'nMSE':>10} {'RMS [N m]':>10}")

@@ -34,7 +34,13 @@ from .data import JointLog
 from .physical import ConsistencyReport, check
 from .pipeline import IdentificationResult
 
-__all__ = ["TorqueFit", "IdentificationReport", "make_report", "torque_errors"]
+__all__ = [
+    "TorqueFit",
+    "IdentificationReport",
+    "make_report",
+    "predicted_torques",
+    "torque_errors",
+]
 
 
 @dataclass(frozen=True)
@@ -67,18 +73,17 @@ def torque_errors(tau, predicted) -> tuple[torch.Tensor, torch.Tensor]:
     return mse / tau.var(0, correction=0), mse.sqrt()
 
 
-def _fit(
-    result: IdentificationResult, log: JointLog, theta: torch.Tensor, chunk: int = 4096
-) -> TorqueFit:
-    """Predictions ``Y theta`` chunk by chunk (memory ``O(chunk * n_dof * n_params)``)."""
-    model = result.model
-    pred = torch.cat(
-        [
-            model.regressor(log.q[a : a + chunk], log.qd[a : a + chunk], log.qdd[a : a + chunk])
-            @ theta.to(torch.float64)
-            for a in range(0, log.n_samples, chunk)
-        ]
-    )
+def predicted_torques(model, theta, q, qd, qdd, tau) -> torch.Tensor:
+    """``Y(q, qd, qdd) theta``, ``(n_samples, n_dof)``, formed chunk by chunk
+    (`RigidBodyModel.regressor_chunks`: memory ``O(chunk * n_dof * n_params)``); ``tau`` only
+    fixes the shapes."""
+    theta = torch.as_tensor(theta, dtype=torch.float64)
+    rows = [Y @ theta for Y, _ in model.regressor_chunks(q, qd, qdd, tau)]
+    return torch.cat(rows).reshape(-1, model.n_dof)
+
+
+def _fit(result: IdentificationResult, log: JointLog, theta: torch.Tensor) -> TorqueFit:
+    pred = predicted_torques(result.model, theta, log.q, log.qd, log.qdd, log.tau)
     nmse, rms = torque_errors(log.tau, pred)
     return TorqueFit(nmse=nmse, rms=rms, predicted=pred)
 

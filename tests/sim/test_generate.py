@@ -199,3 +199,11 @@ def test_regressor_noise_with_joint_weights_is_that_of_the_weighted_rows():
                                          log.qdd[k * P : (k + 1) * P])[:, j] for k in range(3)])  # fmt: skip
         ref = Y.var(dim=0, correction=1).mean(0)  # (n_params,): joint j's rows alone
         torch.testing.assert_close(one, ref)
+
+
+def test_sensor_noise_scaled_keeps_per_joint_values():
+    from torchjfa.sim import SensorNoise
+
+    noise = SensorNoise(1e-3, (0.1, 0.2), 0.5).scaled(2.0)
+    assert noise == SensorNoise(2e-3, (0.2, 0.4), 1.0)
+    np.testing.assert_allclose(noise.per_joint(2)[1], [0.2, 0.4])

@@ -45,6 +45,7 @@ from ..dynamics import InverseDynamics, RigidBodyModel
 from ..estimators import BayesianJFA, Lasso, Ridge, Stepwise
 from ..physical import check, project
 from ..pipeline import residual_joint_weights, stream_moments
+from ..report import torque_errors
 from ..sim import (
     DEFAULT_RATES,
     ControlResult,
@@ -324,8 +325,7 @@ def evaluate_control(
 
 def _nmse(Y: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor) -> float:
     """Mean over joints of MSE_j / var(tau_j); ``Y (n, n_dof, p)``, ``tau (n, n_dof)``."""
-    err = Y @ theta - tau
-    return float(((err * err).mean(0) / tau.var(0, correction=0)).mean())
+    return float(torque_errors(tau, Y @ theta)[0].mean())
 
 
 def run_robot(

@@ -26,12 +26,7 @@ def run(
     progress: bool = True,
 ) -> dict[str, float]:
     """Generate (and optionally save) a log; return its size, wall time and samples per second."""
-    base = SensorNoise()
-    noise = SensorNoise(
-        base.position_std * noise_scale,
-        base.velocity_std * noise_scale,
-        base.torque_std * noise_scale,
-    )
+    noise = SensorNoise().scaled(noise_scale)
     start = time.perf_counter()
     log = generate_log(
         robot, n_samples=n_samples, unmodeled=unmodeled, noise=noise, seed=seed, progress=progress

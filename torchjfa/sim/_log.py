@@ -80,6 +80,15 @@ class SensorNoise:
         """No noise at all."""
         return cls(0.0, 0.0, 0.0)
 
+    def scaled(self, factor: float) -> SensorNoise:
+        """The same noise with every standard deviation multiplied by ``factor``."""
+        factor = float(factor)
+
+        def mul(v):
+            return float(v) * factor if np.ndim(v) == 0 else tuple(float(x) * factor for x in v)
+
+        return SensorNoise(mul(self.position_std), mul(self.velocity_std), mul(self.torque_std))
+
     def per_joint(self, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The three standard deviations as ``(n_dof,)`` arrays.
 
