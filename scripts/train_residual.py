@@ -1,17 +1,18 @@
 """Identified dynamics + learned residual vs identified-only vs MLP-only on the simulated head.
 
-    python scripts/train_residual.py                 # the full run (several minutes on 2 CPUs)
+    python scripts/train_residual.py                 # the full run (about 10 minutes on 2 CPUs)
     python scripts/train_residual.py --smoke         # tiny sizes, a few seconds of training
 
 Steps: simulate a training and a held-out test log of the 7-DoF head with its unmodeled effects
 on (armature, dry friction, joint stiffness), each on its own random excitation (a long period,
-so the training log does not repeat itself); identify the rigid-body parameters from the
-training log (OLS on the moments, then the projection onto physically consistent parameters) and
-save them with `torchjfa.io.save_identified`; train, with Lightning, an MLP on (q, qd, qdd) alone
-and the identified model plus an MLP residual (theta frozen), on the first n training samples
-for several n; report the held-out torque nMSE (measured inputs, noise-free target torques) of
-identified-only, MLP-only and identified + residual, and plot the data-efficiency curves.
-Every model is trained for the same number of gradient steps.
+so the training log does not repeat itself). Then, for each training size n, on the first n
+training samples only: identify the rigid-body parameters (per-joint weighted least squares,
+`torchjfa.pipeline.residual_joint_weights`, then the projection onto physically consistent
+parameters), save them with `torchjfa.io.save_identified`, and train with Lightning an MLP on
+(q, qd, qdd) alone and the identified model plus a residual (theta frozen): the joint-local
+`JointResidual` and, with ``--residuals joint,mlp``, a whole-state MLP residual too. Report the
+held-out torque nMSE (measured inputs, noise-free target torques) of every model at every n, and
+plot the data-efficiency curves. Every network is trained for the same number of gradient steps.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import torchjfa.io
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS
 from torchjfa.learning import ResidualDynamicsModule, StateTorqueDataset, log_tensors, nmse
-from torchjfa.physical import project
+from torchjfa.pipeline import identify, residual_joint_weights
 from torchjfa.sim import generate_log, load_robot, model_path, random_trajectory
 
 QUIET = (
@@ -80,9 +81,11 @@ def run(
     n_train: int = 20_000,
     n_test: int = 5_000,
     sizes: tuple[int, ...] = (200, 500, 2000, 20_000),
+    residuals: tuple[str, ...] = ("joint",),
     steps: int = 2000,
     batch_size: int = 256,
     hidden: tuple[int, ...] = (64, 64),
+    joint_hidden: tuple[int, ...] = (16, 16),
     lr: float = 3e-3,
     weight_decay: float = 1e-2,
     base_frequency: float = 0.02,
@@ -90,7 +93,12 @@ def run(
     seed: int = 0,
     plot: bool = True,
 ) -> dict:
-    """Run the comparison; returns (and writes to ``out_dir/results.json``) the nMSEs."""
+    """Run the comparison; returns (and writes to ``out_dir/results.json``) the nMSEs.
+
+    ``residuals``: the residual networks on top of the identified model, ``"joint"``
+    (`JointResidual`, hidden ``joint_hidden``) and/or ``"mlp"`` (an `MLP` of the whole state,
+    hidden ``hidden``, as the MLP-only model).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -108,20 +116,8 @@ def run(
         logs[name].save(out / f"{robot}_{name}.npz")
     t_sim = time.perf_counter() - t0
 
-    # identification: OLS on the moments of the measured signals, then projection (eq. 8)
     model = RigidBodyModel.from_mjcf(model_path(robot))
     q, qd, qdd, tau = log_tensors(logs["train"], "measured", model.joint_names)
-    t1 = time.perf_counter()
-    moments = model.moments(q, qd, qdd, tau)
-    theta_ols = OLS(fit_intercept=False).fit_moments(moments).coef_
-    theta = project(theta_ols, layout=model, moments=moments).theta
-    t_id = time.perf_counter() - t1
-    id_path = out / f"{robot}_identified.npz"
-    torchjfa.io.save_identified(
-        id_path, model, theta, estimator="OLS + projection (virtual)", n_samples=n_train
-    )
-    idyn = torchjfa.io.load_identified(id_path)  # the file's model, as every user loads it
-
     t2 = time.perf_counter()
     Y = model.regressor(q, qd, qdd)  # once, for every residual model
     t_reg = time.perf_counter() - t2
@@ -129,36 +125,64 @@ def run(
     qt, qdt, qddt, taut = log_tensors(logs["test"], "measured_inputs", model.joint_names)
     with torch.no_grad():
         Yt = model.regressor(qt, qdt, qddt)
-        results = {"identified": float(nmse(Yt @ idyn.theta, taut))}
 
     sizes = tuple(n for n in sizes if n <= n_train)
-    curves = {"mlp": {}, "residual": {}}
-    t3 = time.perf_counter()
+    kinds = ("mlp", *(f"residual_{r}" for r in residuals))
+    curves = {k: {} for k in ("identified", *kinds)}
+    t_id = t_train = 0.0
     for n in sizes:
-        for kind in curves:
-            kw = {"n_dof": model.n_dof} if kind == "mlp" else {"identified": str(id_path)}
-            module = ResidualDynamicsModule(
-                hidden=hidden, lr=lr, weight_decay=weight_decay, seed=seed, **kw
-            )
+        # identification from the first n samples only: weighted least squares, projected
+        t1 = time.perf_counter()
+        part = {"q": q[:n], "qd": qd[:n], "qdd": qdd[:n], "tau": tau[:n]}
+        weights = residual_joint_weights(model, part)
+        result = identify(model, part, estimator=OLS(fit_intercept=False), joint_weights=weights)
+        t_id += time.perf_counter() - t1
+        id_path = out / f"{robot}_identified_{n}.npz"
+        torchjfa.io.save_identified(
+            id_path,
+            model,
+            result.theta,
+            estimator="weighted OLS + projection (virtual)",
+            n_samples=n,
+            joint_weights=weights,
+        )
+        idyn = torchjfa.io.load_identified(id_path)  # the file's model, as every user loads it
+        with torch.no_grad():
+            curves["identified"][n] = float(nmse(Yt @ idyn.theta, taut))
+        print(f"  n={n:6d} {'identified':12s} test nMSE {curves['identified'][n]:.5f}", flush=True)
+        t3 = time.perf_counter()
+        for kind in kinds:
+            if kind == "mlp":
+                kw = {"n_dof": model.n_dof, "hidden": hidden}
+            else:
+                r = kind.removeprefix("residual_")
+                kw = {
+                    "identified": str(id_path),
+                    "residual_kind": r,
+                    "hidden": joint_hidden if r == "joint" else hidden,
+                }
+            module = ResidualDynamicsModule(lr=lr, weight_decay=weight_decay, seed=seed, **kw)
             net = _train(module, tensors, n, steps=steps, batch_size=batch_size, seed=seed)
             with torch.no_grad():
-                pred = net(qt, qdt, qddt, regressor=Yt if kind == "residual" else None)
+                pred = net(qt, qdt, qddt, regressor=None if kind == "mlp" else Yt)
             curves[kind][n] = float(nmse(pred, taut))
-            print(f"  n={n:6d} {kind:9s} test nMSE {curves[kind][n]:.5f}", flush=True)
-    t_train = time.perf_counter() - t3
+            print(f"  n={n:6d} {kind:12s} test nMSE {curves[kind][n]:.5f}", flush=True)
+        t_train += time.perf_counter() - t3
     n_full = sizes[-1]
-    results["mlp"] = curves["mlp"][n_full]
-    results["residual"] = curves["residual"][n_full]
-    reach = [n for n in sizes if curves["residual"][n] <= results["mlp"]]
+    results = {k: c[n_full] for k, c in curves.items()}
+    best = min((k for k in kinds if k != "mlp"), key=lambda k: results[k])
+    reach = [n for n in sizes if curves[best][n] <= results["mlp"]]
     summary = {
         "robot": robot,
         "n_train": n_train,
         "n_test": n_test,
         "steps": steps,
         "weight_decay": weight_decay,
+        "identification": "weighted OLS + projection, on the first n samples",
         "nmse_at_full_data": results,
         "curves": {k: {str(n): v for n, v in c.items()} for k, c in curves.items()},
-        "residual_beats_both": results["residual"] < min(results["identified"], results["mlp"]),
+        "best_residual": best,
+        "residual_beats_both": results[best] < min(results["identified"], results["mlp"]),
         "smallest_n_residual_reaches_mlp_full": min(reach) if reach else None,
         "fraction_of_data": (min(reach) / n_full) if reach else None,
         "seconds": {"simulate": t_sim, "identify": t_id, "regressor": t_reg, "train": t_train},
@@ -169,6 +193,14 @@ def run(
     return summary
 
 
+_LABELS = {
+    "identified": "identified only",
+    "mlp": "MLP only",
+    "residual_joint": "identified + joint residual",
+    "residual_mlp": "identified + MLP residual",
+}
+
+
 def _plot(summary, sizes, curves, out: Path) -> None:
     import matplotlib
 
@@ -176,16 +208,16 @@ def _plot(summary, sizes, curves, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     res = summary["nmse_at_full_data"]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    names = ["identified", "mlp", "residual"]
-    a.bar(["identified only", "MLP only", "identified + residual"], [res[k] for k in names])
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    a.bar([_LABELS[k].replace(" + ", " +\n") for k in res], list(res.values()))
     a.set_yscale("log")
     a.set_ylabel("held-out torque nMSE")
     a.set_title(f"n = {sizes[-1]} training samples")
-    for kind, label in (("mlp", "MLP only"), ("residual", "identified + residual")):
-        b.loglog(sizes, [curves[kind][n] for n in sizes], "o-", label=label)
-    b.axhline(res["identified"], color="k", ls="--", label="identified only")
-    b.set_xlabel("training samples")
+    for kind, curve in curves.items():
+        style = "ks--" if kind == "identified" else "o-"
+        b.loglog(sizes, [curve[n] for n in sizes], style, label=_LABELS[kind], mfc="none")
+    b.axhline(res["mlp"], color="gray", ls=":", label="MLP only at full data")
+    b.set_xlabel("training samples (identification and training)")
     b.set_ylabel("held-out torque nMSE")
     b.legend()
     fig.tight_layout()
@@ -202,6 +234,11 @@ def main() -> None:
     p.add_argument("--out-dir", default="residual_results")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--weight-decay", type=float, default=1e-2, help="Adam's, both models")
+    p.add_argument(
+        "--residuals",
+        default="joint",
+        help="residual networks on the identified model, comma-separated: joint, mlp",
+    )
     p.add_argument("--smoke", action="store_true", help="tiny sizes (a quick check)")
     args = p.parse_args()
     kw = dict(
@@ -212,22 +249,21 @@ def main() -> None:
         out_dir=args.out_dir,
         seed=args.seed,
         weight_decay=args.weight_decay,
+        residuals=tuple(r.strip() for r in args.residuals.split(",") if r.strip()),
     )
     if args.smoke:
         kw.update(n_train=1000, n_test=500, steps=100, sizes=(100, 1000))
     s = run(**kw)
     res = s["nmse_at_full_data"]
+    best = s["best_residual"]
     print(f"held-out torque nMSE with {s['n_train']} training samples ({s['robot']}):")
-    for k in ("identified", "mlp", "residual"):
-        print(
-            f"  {k:10s} {res[k]:.5f}   ratio to identified + residual: "
-            f"{res[k] / res['residual']:.2f}"
-        )
-    print(f"identified + residual beats both: {s['residual_beats_both']}")
+    for k, v in res.items():
+        print(f"  {_LABELS[k]:28s} {v:.5f}   ratio to {_LABELS[best]}: {v / res[best]:.2f}")
+    print(f"{_LABELS[best]} beats both identified only and MLP only: {s['residual_beats_both']}")
     print(
-        f"identified + residual reaches MLP-only's error ({res['mlp']:.5f}) with "
+        f"{_LABELS[best]} reaches MLP only's error ({res['mlp']:.5f}) with "
         f"{s['smallest_n_residual_reaches_mlp_full']} samples "
-        f"(fraction {s['fraction_of_data']} of MLP-only's {s['n_train']})"
+        f"(fraction {s['fraction_of_data']} of MLP only's {s['n_train']})"
     )
     print("seconds:", {k: round(v, 1) for k, v in s["seconds"].items()})
 

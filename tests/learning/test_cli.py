@@ -7,7 +7,12 @@ import pytest
 import torch
 import yaml
 
-from torchjfa.learning import ResidualDynamicsModule, SimulatedLogDataModule, load_checkpoint
+from torchjfa.learning import (
+    JointResidual,
+    ResidualDynamicsModule,
+    SimulatedLogDataModule,
+    load_checkpoint,
+)
 from torchjfa.learning.cli import main
 
 from ._helpers import quiet_lightning
@@ -29,6 +34,8 @@ def test_shipped_config_builds_the_model_and_data(head_files):
     text = yaml.safe_load(cfg.read_text())
     assert cli.model.hparams.lr == text["model"]["lr"]
     assert cli.model.model.has_physics and not cli.model.model.fine_tune
+    assert text["model"]["residual_kind"] == "joint"
+    assert isinstance(cli.model.model.residual, JointResidual)
     assert cli.datamodule.batch_size == text["data"]["batch_size"]
     assert cli.trainer.max_epochs == text["trainer"]["max_epochs"]
 

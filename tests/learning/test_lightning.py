@@ -29,7 +29,7 @@ def _flat(module):
     return torch.cat([p.detach().flatten() for p in module.parameters()])
 
 
-@pytest.mark.parametrize("variant", ["frozen", "fine_tune", "learned_only"])
+@pytest.mark.parametrize("variant", ["frozen", "fine_tune", "learned_only", "joint"])
 def test_fit_lowers_the_loss_and_the_checkpoint_loads_without_lightning(
     head_files, tmp_path, variant
 ):
@@ -38,6 +38,7 @@ def test_fit_lowers_the_loss_and_the_checkpoint_loads_without_lightning(
         "learned_only": dict(n_dof=7),
         "fine_tune": dict(identified=str(id_path), fine_tune=True),
         "frozen": dict(identified=str(id_path)),
+        "joint": dict(identified=str(id_path), residual_kind="joint", weight_decay=1e-2),
     }[variant]
     module = ResidualDynamicsModule(hidden=(16,), lr=1e-2, **kw)
     dm = _data(head_files, signals="true")  # noiseless: the residual is the unmodeled effects
@@ -52,7 +53,12 @@ def test_fit_lowers_the_loss_and_the_checkpoint_loads_without_lightning(
         pred = module.model(val["q"], val["qd"], val["qdd"])
     expected = (((pred - val["tau"]) ** 2) * module.loss_weight).mean()
     torch.testing.assert_close(tr.callback_metrics["val_loss"].double(), expected)
-    if variant == "frozen":  # training improves on the identified model alone
+    if variant == "joint":  # the physical linear term is not decayed, the networks are
+        groups = tr.optimizers[0].param_groups
+        linear = module.model.residual.linear
+        assert [g["weight_decay"] for g in groups] == [1e-2, 0.0]
+        assert [p is linear for p in groups[1]["params"]] == [True]
+    if variant in ("frozen", "joint"):  # training improves on the identified model alone
         idyn = load_identified(id_path)
         with torch.no_grad():
             base = idyn(val["q"], val["qd"], val["qdd"])

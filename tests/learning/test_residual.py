@@ -1,12 +1,13 @@
-"""`ResidualDynamics` and `MLP`: written-out formulas, shapes, gradients, consistency when
-fine-tuning; `nmse` against scikit-learn's R^2."""
+"""`ResidualDynamics`, `MLP` and `JointResidual`: written-out formulas, shapes, gradients,
+consistency when fine-tuning, the joint residual's least squares against scikit-learn; `nmse`
+against scikit-learn's R^2."""
 
 import pytest
 import torch
 from torch import nn
 
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
-from torchjfa.learning import MLP, ResidualDynamics, nmse, state_features
+from torchjfa.learning import MLP, JointResidual, ResidualDynamics, nmse, state_features
 from torchjfa.physical import check
 from torchjfa.sim import model_path
 
@@ -113,6 +114,88 @@ def test_mlp_normalization_and_seeded_initialisation():
     assert "in_std" in a.state_dict()
 
 
+def _joint_by_hand(m: JointResidual, q, qd, qdd):
+    """Joint by joint, with ordinary matrix products: the written-out forward."""
+    out = []
+    for j in range(m.n_dof):
+        f = torch.stack([q[:, j], qd[:, j], qdd[:, j], torch.tanh(qd[:, j] / m.friction_velocity)])
+        phi = (f.T - m.in_mean[j]) / m.in_std[j]
+        h = phi
+        for i, (w, b) in enumerate(zip(m.weights, m.biases, strict=True)):
+            h = h @ w[j] + b[j]
+            if i < len(m.weights) - 1:
+                h = torch.tanh(h)
+        r = h[:, 0] + phi @ m.linear[j]
+        out.append(r * m.out_std[j] + m.out_mean[j])
+    return torch.stack(out, -1)
+
+
+def test_joint_residual_forward_is_joint_local_and_as_written_out():
+    q, qd, qdd = _states((40, 3))
+    m = JointResidual(3, hidden=(5, 4), seed=1, zero_output=False)
+    m.fit_normalization(state_features(q, qd, qdd), torch.randn(40, 3, dtype=torch.float64))
+    with torch.no_grad():
+        m.linear.copy_(torch.randn(m.linear.shape, dtype=torch.float64))
+    x = state_features(q, qd, qdd)
+    torch.testing.assert_close(m(x), _joint_by_hand(m, q, qd, qdd), rtol=1e-12, atol=1e-12)
+    # joint j's output does not depend on any other joint's q, qd or qdd
+    jac = torch.autograd.functional.jacobian(lambda z: m(z).sum(0), x[:6])  # (3, 6, 9)
+    feature_joint = torch.arange(9) % 3
+    for j in range(3):
+        assert jac[j][:, feature_joint != j].abs().max() == 0
+        assert jac[j][:, feature_joint == j].abs().max() > 0
+    # the untrained residual with a zero last layer is its output mean: zero before fitting
+    assert torch.equal(JointResidual(3)(x), torch.zeros(40, 3, dtype=torch.float64))
+
+
+def test_joint_residual_least_squares_equals_sklearn_ridge_per_joint():
+    linear_model = pytest.importorskip("sklearn.linear_model")
+    g = torch.Generator().manual_seed(4)
+    n, v = 400, 0.05
+    q, qd, qdd = (torch.randn(n, 2, generator=g, dtype=torch.float64) for _ in range(3))
+    q[:, 1] = 0.7  # a constant feature: no crash, the fit is the same as without it
+    truth = torch.tensor([[0.3, -0.2, 1.5, 0.4], [0.0, 0.1, 0.02, 0.05]], dtype=torch.float64)
+    feats = torch.stack([q, qd, qdd, torch.tanh(qd / v)], -1)  # (n, 2, 4)
+    y = (feats * truth).sum(-1) + torch.tensor([0.5, -1.0]) + 0.01 * torch.randn(n, 2, generator=g)
+    m = JointResidual(2, friction_velocity=v, ridge=1e-2)
+    m.fit_normalization(state_features(q, qd, qdd), y)
+    with torch.no_grad():
+        pred = m(state_features(q, qd, qdd))
+    for j in range(2):
+        f = feats[:, j]
+        std = f.std(0)
+        phi = ((f - f.mean(0)) / torch.where(std > 0, std, torch.ones_like(std))).numpy()
+        ref = linear_model.Ridge(alpha=1e-2 * n).fit(phi, y[:, j].numpy())
+        torch.testing.assert_close(
+            pred[:, j], torch.as_tensor(ref.predict(phi)), rtol=1e-10, atol=1e-10
+        )
+    # the fit itself is close to the truth: a well-excited feature is hardly shrunk
+    assert nmse(pred, y) < 1e-2
+    assert m.no_weight_decay() == {"linear"}
+
+
+def test_joint_residual_does_not_blow_up_on_a_feature_constant_in_training():
+    # the joint never reverses in training (its friction feature is +1 throughout, up to
+    # rounding) and does on the new data: the prediction stays of the training torques' size
+    g = torch.Generator().manual_seed(5)
+    n = 200
+    q, qdd = (torch.randn(n, 1, generator=g, dtype=torch.float64) for _ in range(2))
+    qd = 0.1 + 0.05 * torch.rand(n, 1, generator=g, dtype=torch.float64)
+    y = 0.2 * qdd + 0.3 + 0.01 * torch.randn(n, 1, generator=g, dtype=torch.float64)
+    m = JointResidual(1)
+    m.fit_normalization(state_features(q, qd, qdd), y)
+    new = state_features(q, -qd, qdd)
+    with torch.no_grad():
+        assert m(new).abs().max() < 10 * y.abs().max()
+
+
+def test_residual_kind_joint_builds_a_joint_residual(head):
+    model = ResidualDynamics(InverseDynamics(head), residual_kind="joint", hidden=(4,))
+    assert isinstance(model.residual, JointResidual) and model.residual.n_inputs == 3
+    q, qd, qdd = _states((5, head.n_dof))
+    torch.testing.assert_close(model(q, qd, qdd), model.rigid_body_torque(q, qd, qdd))
+
+
 def test_bad_input_is_rejected(head):
     with pytest.raises(ValueError, match="n_dof is required"):
         ResidualDynamics(None)
@@ -126,6 +209,20 @@ def test_bad_input_is_rejected(head):
         MLP(2, 2, activation="sigmoid")
     with pytest.raises(ValueError, match="hidden"):
         MLP(2, 2, hidden=(0,))
+    with pytest.raises(ValueError, match="residual_kind"):
+        ResidualDynamics(None, n_dof=2, residual_kind="gru")
+    with pytest.raises(ValueError, match="multiple of n_dof"):
+        ResidualDynamics(
+            None, n_dof=2, features=state_features, n_features=5, residual_kind="joint"
+        )
+    with pytest.raises(ValueError, match="friction_velocity"):
+        JointResidual(2, friction_velocity=0.0)
+    with pytest.raises(ValueError, match="ridge"):
+        JointResidual(2, ridge=0.0)
+    with pytest.raises(ValueError, match="velocity_index"):
+        JointResidual(2, velocity_index=3)
+    with pytest.raises(ValueError, match="inputs"):
+        JointResidual(2)(torch.zeros(4, 5, dtype=torch.float64))
     model = ResidualDynamics(InverseDynamics(head), hidden=(4,))
     q, qd, qdd = _states((3, head.n_dof))
     with pytest.raises(ValueError, match="shape"):

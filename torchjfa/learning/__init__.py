@@ -1,8 +1,8 @@
 """Identified rigid-body dynamics composed with learned residual dynamics, trained with Lightning.
 
 - `ResidualDynamics`: ``tau = Y(q, qd, qdd) theta + r(features)`` as a plain ``nn.Module``, the
-  identified theta frozen or fine-tuned through `VirtualParameters`; `MLP` is the default
-  residual network.
+  identified theta frozen or fine-tuned through `VirtualParameters`; the residual network is an
+  `MLP` of the whole state or a `JointResidual` (each joint from its own state).
 - `ResidualDynamicsModule` (``LightningModule``) and `SimulatedLogDataModule`
   (``LightningDataModule`` over `torchjfa.sim.SimulatedLog` files, split by time) train it,
   on one or several processes (DDP); ``python -m torchjfa.learning.cli fit --config cfg.yaml``
@@ -19,5 +19,6 @@ from ._lightning import ResidualDynamicsModule as ResidualDynamicsModule
 from ._lightning import load_checkpoint as load_checkpoint
 from ._metrics import nmse as nmse
 from ._residual import MLP as MLP
+from ._residual import JointResidual as JointResidual
 from ._residual import ResidualDynamics as ResidualDynamics
 from ._residual import state_features as state_features

@@ -23,7 +23,7 @@ from torch import nn
 
 from ..dynamics import InverseDynamics
 from ..io import identified_from_dict, identified_to_dict, load_identified
-from ._residual import MLP, ResidualDynamics
+from ._residual import MLP, JointResidual, ResidualDynamics
 
 __all__ = ["ResidualDynamicsModule", "load_checkpoint", "CHECKPOINT_KEY"]
 
@@ -40,6 +40,7 @@ def _build(hp: dict, identified: InverseDynamics | None, residual, features) -> 
         n_dof=None if identified is not None else hp["n_dof"],
         hidden=tuple(hp["hidden"]),
         seed=hp["seed"],
+        residual_kind=hp.get("residual_kind", "mlp"),
     )
 
 
@@ -54,8 +55,10 @@ class ResidualDynamicsModule(L.LightningModule):
         n_dof: joints, when there is no identified model.
         features: features of the residual (see `ResidualDynamics`; not saved as a
             hyper-parameter, give it again to `load_checkpoint`); n_features its width.
-        hidden, seed: of the default MLP.
-        lr, weight_decay: Adam's.
+        residual_kind: the default residual, ``"mlp"`` or ``"joint"`` (see `ResidualDynamics`).
+        hidden, seed: of the default residual network.
+        lr, weight_decay: Adam's; parameters a module lists in its ``no_weight_decay()`` (the
+            linear term of a `JointResidual`) are not decayed.
         scheduler: ``"cosine"`` (cosine annealing of the learning rate to 0 over
             ``trainer.max_epochs``) or ``"none"``.
         normalize: at the start of fitting, set the default MLP's input and output
@@ -72,6 +75,7 @@ class ResidualDynamicsModule(L.LightningModule):
         n_dof: int | None = None,
         features: Callable[..., torch.Tensor] | None = None,
         n_features: int | None = None,
+        residual_kind: str = "mlp",
         hidden: Sequence[int] = (64, 64),
         seed: int = 0,
         lr: float = 1e-3,
@@ -103,6 +107,7 @@ class ResidualDynamicsModule(L.LightningModule):
             "n_dof": n_dof,
             "hidden": hidden,
             "seed": seed,
+            "residual_kind": residual_kind,
         }
         self.model = _build(hp, identified, residual, features)
         self._custom_residual = residual is not None
@@ -136,7 +141,7 @@ class ResidualDynamicsModule(L.LightningModule):
         var = torch.where(var > 0, var, torch.ones_like(var))
         self.loss_weight.copy_(1.0 / var)
         residual = self.model.residual
-        if self.hparams.normalize and isinstance(residual, MLP):
+        if self.hparams.normalize and isinstance(residual, MLP | JointResidual):
             q, qd, qdd = tensors["q"], tensors["qd"], tensors["qdd"]
             target = tau - self.model.rigid_body_torque(q, qd, qdd, regressor=tensors.get("Y"))
             residual.fit_normalization(self.model.features(q, qd, qdd), target)
@@ -180,8 +185,21 @@ class ResidualDynamicsModule(L.LightningModule):
         return loss
 
     def configure_optimizers(self):
+        exempt = {
+            f"{prefix}.{name}" if prefix else name
+            for prefix, module in self.named_modules()
+            if hasattr(module, "no_weight_decay")
+            for name in module.no_weight_decay()
+        }
+        params = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
+        groups = [
+            {"params": [p for n, p in params if n not in exempt]},
+            {"params": [p for n, p in params if n in exempt], "weight_decay": 0.0},
+        ]
         opt = torch.optim.Adam(
-            self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay
+            [g for g in groups if g["params"]],
+            lr=self.hparams.lr,
+            weight_decay=self.hparams.weight_decay,
         )
         epochs = getattr(self.trainer, "max_epochs", None) if self._trainer else None
         if self.hparams.scheduler == "none" or not epochs or epochs < 1:

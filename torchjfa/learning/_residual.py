@@ -2,8 +2,10 @@
 
 ``tau = Y(q, qd, qdd) theta + r(features(q, qd, qdd))``: the physics part is an
 `torchjfa.dynamics.InverseDynamics` (frozen, or fine-tuned through `VirtualParameters` so that
-theta stays physically consistent while it trains), the residual ``r`` any ``nn.Module`` (an
-`MLP` by default) on the concatenated state or on features the user gives. Use it in plain
+theta stays physically consistent while it trains), the residual ``r`` any ``nn.Module`` on the
+concatenated state or on features the user gives: an `MLP` of the whole state by default, or a
+`JointResidual`, where each joint's residual torque depends on that joint's own state only (the
+shape of what rigid-body models leave out: armature, friction, springs and cables of a joint). Use it in plain
 torch; `torchjfa.learning.ResidualDynamicsModule` trains it with Lightning. Without a physics
 part (``inverse_dynamics=None``) it is a plain learned model, the baseline the residual model is
 compared with.
@@ -19,14 +21,29 @@ from torch import nn
 from ..dynamics import InverseDynamics
 from ..physical import VirtualParameters
 
-__all__ = ["MLP", "ResidualDynamics", "state_features"]
+__all__ = ["MLP", "JointResidual", "ResidualDynamics", "state_features"]
 
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
+_RESIDUAL_KINDS = ("mlp", "joint")
+_MIN_RELATIVE_STD = 1e-2  # JointResidual: standardise by at least 1% of a feature's RMS
 
 
 def state_features(q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> torch.Tensor:
     """The default residual input: ``(*batch, 3 n_dof)`` = ``[q, qd, qdd]`` concatenated."""
     return torch.cat([q, qd, qdd], -1)
+
+
+def _check_network(widths: dict, hidden: Sequence[int], activation: str) -> tuple[int, ...]:
+    """Validate a network's widths and activation; returns ``hidden`` as a tuple."""
+    for name, v in widths.items():
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"{name} must be a positive int, got {v!r}")
+    hidden = tuple(hidden)
+    if any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in hidden):
+        raise ValueError(f"hidden must be a sequence of positive ints, got {hidden!r}")
+    if activation not in _ACTIVATIONS:
+        raise ValueError(f"activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}")
+    return hidden
 
 
 class MLP(nn.Module):
@@ -59,16 +76,9 @@ class MLP(nn.Module):
         zero_output: bool = True,
     ) -> None:
         super().__init__()
-        for name, v in (("in_features", in_features), ("out_features", out_features)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be a positive int, got {v!r}")
-        hidden = tuple(hidden)
-        if any(isinstance(h, bool) or not isinstance(h, int) or h < 1 for h in hidden):
-            raise ValueError(f"hidden must be a sequence of positive ints, got {hidden!r}")
-        if activation not in _ACTIVATIONS:
-            raise ValueError(
-                f"activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}"
-            )
+        hidden = _check_network(
+            {"in_features": in_features, "out_features": out_features}, hidden, activation
+        )
         self.in_features, self.out_features = in_features, out_features
         self.hidden, self.activation = hidden, activation
         widths = (in_features, *hidden, out_features)
@@ -136,6 +146,191 @@ class MLP(nn.Module):
         return f"hidden={self.hidden}, activation={self.activation!r}"
 
 
+class JointResidual(nn.Module):
+    """A joint-local residual: joint ``j``'s torque from joint ``j``'s own features only.
+
+    What a rigid-body model leaves out of a joint's torque is mostly that joint's own business:
+    rotor inertia (armature, ``~ qdd_j``), viscous and dry friction (``~ qd_j``,
+    ``~ sign(qd_j)``), springs and cables (``~ q_j``). A network of the whole state has to find
+    that structure in the data, and from one trajectory it finds correlations that do not carry
+    over to another; this module has it built in. For each joint::
+
+        f_j   = [x_1j, ..., x_kj, tanh(x_vj / friction_velocity)]   (the last one optional)
+        phi_j = (f_j - in_mean_j) / in_std_j
+        r_j   = out_std_j * (linear_j . phi_j + mlp_j(phi_j)) + out_mean_j
+
+    with a separate small network ``mlp_j`` per joint (all joints evaluated in one batched
+    product) and a linear term, which `fit_normalization` sets by least squares, so that the
+    networks only learn what a linear armature / friction / spring model leaves. The smooth
+    sign ``tanh(qd / friction_velocity)`` is the usual regularised Coulomb friction.
+
+    Args:
+        n_dof: joints.
+        n_inputs: features per joint ``k``; the input is ``(*batch, k n_dof)`` laid out feature
+            by feature (``[x_1 of every joint, x_2 of every joint, ...]``), as `state_features`
+            gives ``[q, qd, qdd]`` (``k = 3``).
+        hidden: widths of each joint's hidden layers; ``()`` for the linear term alone.
+        activation: ``"tanh"``, ``"relu"``, ``"silu"`` or ``"gelu"``.
+        friction_velocity: velocity scale of the smooth Coulomb feature, in the units of the
+            velocity feature (rad/s or m/s); None leaves the feature out.
+        velocity_index: which of the ``k`` features is the joint velocity (1 for
+            `state_features`).
+        ridge: penalty of the least-squares fit of the linear term, per sample, on standardised
+            features (the features of a joint that moved have variance 1 and are shrunk by
+            ``1 / (1 + ridge)`` at most).
+        dtype, device, seed, zero_output: as for `MLP` (with ``zero_output`` the untrained
+            residual is ``out_mean``: zero before `fit_normalization`).
+
+    Attributes:
+        linear: ``(n_dof, k')`` weights of the linear term (``k' = k + 1`` with the friction
+            feature); excluded from weight decay (`no_weight_decay`).
+        weights, biases: the per-joint networks' layers, ``(n_dof, in, out)`` and
+            ``(n_dof, out)``.
+    """
+
+    def __init__(
+        self,
+        n_dof: int,
+        n_inputs: int = 3,
+        *,
+        hidden: Sequence[int] = (16, 16),
+        activation: str = "tanh",
+        friction_velocity: float | None = 0.01,
+        velocity_index: int = 1,
+        ridge: float = 1e-3,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+        seed: int | None = 0,
+        zero_output: bool = True,
+    ) -> None:
+        super().__init__()
+        hidden = _check_network({"n_dof": n_dof, "n_inputs": n_inputs}, hidden, activation)
+        if friction_velocity is not None and not friction_velocity > 0:
+            raise ValueError(f"friction_velocity must be > 0 or None, got {friction_velocity!r}")
+        if friction_velocity is not None and not 0 <= velocity_index < n_inputs:
+            raise ValueError(f"velocity_index must be in [0, {n_inputs}), got {velocity_index!r}")
+        self.n_dof, self.n_inputs, self.hidden, self.activation = (
+            n_dof,
+            n_inputs,
+            hidden,
+            activation,
+        )
+        self.friction_velocity = None if friction_velocity is None else float(friction_velocity)
+        self.velocity_index = int(velocity_index)
+        if not ridge > 0:
+            raise ValueError(f"ridge must be > 0, got {ridge!r}")
+        self.ridge = float(ridge)
+        self.zero_output = bool(zero_output)
+        k = n_inputs + (friction_velocity is not None)
+        kw = {"dtype": dtype, "device": device}
+        widths = (k, *hidden, 1) if hidden else ()
+        self.weights = nn.ParameterList(
+            nn.Parameter(torch.zeros(n_dof, a, b, **kw))
+            for a, b in zip(widths, widths[1:], strict=False)
+        )
+        self.biases = nn.ParameterList(
+            nn.Parameter(torch.zeros(n_dof, b, **kw)) for b in widths[1:]
+        )
+        self.linear = nn.Parameter(torch.zeros(n_dof, k, **kw))
+        self._act = _ACTIVATIONS[activation]()
+        if seed is not None:
+            self.reset_parameters(seed)
+        self.register_buffer("in_mean", torch.zeros(n_dof, k, **kw))
+        self.register_buffer("in_std", torch.ones(n_dof, k, **kw))
+        self.register_buffer("out_mean", torch.zeros(n_dof, **kw))
+        self.register_buffer("out_std", torch.ones(n_dof, **kw))
+
+    def reset_parameters(self, seed: int) -> None:
+        """Each joint's layers uniform in ``+-1/sqrt(fan_in)`` from a generator seeded ``seed``
+        (the last layer at zero with ``zero_output``); the linear term at zero."""
+        g = torch.Generator(device="cpu").manual_seed(int(seed))
+        last = len(self.weights) - 1
+        with torch.no_grad():
+            for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+                bound = w.shape[1] ** -0.5
+                for p in (w, b):
+                    u = torch.rand(p.shape, generator=g, dtype=torch.float64)
+                    p.copy_((2 * u - 1) * bound)
+                    if self.zero_output and i == last:
+                        p.zero_()
+            self.linear.zero_()
+
+    def no_weight_decay(self) -> set[str]:
+        """Parameters an optimiser should not decay (the linear term is a physical model,
+        fitted by least squares, not a network weight)."""
+        return {"linear"}
+
+    def joint_features(self, x: torch.Tensor) -> torch.Tensor:
+        """``(*batch, k n_dof)`` -> the raw per-joint features ``(*batch, n_dof, k')``."""
+        if x.shape[-1] != self.n_inputs * self.n_dof:
+            raise ValueError(
+                f"expected (*batch, {self.n_inputs * self.n_dof}) inputs ({self.n_inputs} "
+                f"features of {self.n_dof} joints), got {tuple(x.shape)}"
+            )
+        f = x.to(self.in_mean.dtype).unflatten(-1, (self.n_inputs, self.n_dof)).transpose(-1, -2)
+        if self.friction_velocity is None:
+            return f
+        v = f[..., self.velocity_index : self.velocity_index + 1]
+        return torch.cat([f, torch.tanh(v / self.friction_velocity)], -1)
+
+    @torch.no_grad()
+    def fit_normalization(self, inputs: torch.Tensor, targets: torch.Tensor | None = None) -> None:
+        """Set the standardisation from data and, given targets, the linear term by least
+        squares (per joint, ridge-regularised, see ``ridge``; the intercept is ``out_mean``).
+
+        Args:
+            inputs: ``(n, k n_dof)``.
+            targets: ``(n, n_dof)`` residual torques; None keeps the output statistics and the
+                linear term.
+        """
+        if inputs.ndim != 2 or inputs.shape[0] < 2:
+            raise ValueError(f"inputs must have shape (n >= 2, k n_dof), got {tuple(inputs.shape)}")
+        f = self.joint_features(inputs)
+        # a feature that hardly varies in these data (a velocity that never changes sign: its
+        # friction feature is +-1 throughout) is scaled by at least 1% of its size, not by
+        # its spread, so that other data do not land thousands of units away
+        std = torch.maximum(f.std(0), _MIN_RELATIVE_STD * f.pow(2).mean(0).sqrt())
+        self.in_mean.copy_(f.mean(0))
+        self.in_std.copy_(torch.where(std > 0, std, torch.ones_like(std)))
+        if targets is None:
+            return
+        if targets.shape != (inputs.shape[0], self.n_dof):
+            raise ValueError(
+                f"targets must have shape ({inputs.shape[0]}, {self.n_dof}), "
+                f"got {tuple(targets.shape)}"
+            )
+        y = targets.to(f.dtype)
+        std = y.std(0)
+        self.out_mean.copy_(y.mean(0))
+        self.out_std.copy_(torch.where(std > 0, std, torch.ones_like(std)))
+        phi = ((f - self.in_mean) / self.in_std).transpose(0, 1)  # (n_dof, n, k')
+        b = ((y - self.out_mean) / self.out_std).T.unsqueeze(-1)  # (n_dof, n, 1)
+        # ridge regression on the centred, standardised features (the intercept is the mean):
+        # a well-excited feature (variance 1) is hardly shrunk, a nearly constant one is zeroed
+        k = phi.shape[-1]
+        gram = phi.transpose(1, 2) @ phi + (self.ridge * phi.shape[1]) * torch.eye(k).to(phi)
+        self.linear.copy_(torch.linalg.solve(gram, phi.transpose(1, 2) @ b)[..., 0])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(*batch, k n_dof)`` -> ``(*batch, n_dof)`` in the weights' dtype."""
+        phi = (self.joint_features(x) - self.in_mean) / self.in_std
+        out = (phi * self.linear).sum(-1)
+        h = phi
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = torch.einsum("...ji,jio->...jo", h, w) + b
+            if i < len(self.weights) - 1:
+                h = self._act(h)
+        if len(self.weights):
+            out = out + h[..., 0]
+        return out * self.out_std + self.out_mean
+
+    def extra_repr(self) -> str:
+        return (
+            f"n_dof={self.n_dof}, n_inputs={self.n_inputs}, hidden={self.hidden}, "
+            f"activation={self.activation!r}, friction_velocity={self.friction_velocity}"
+        )
+
+
 class ResidualDynamics(nn.Module):
     """Joint torques as identified rigid-body dynamics plus a learned residual.
 
@@ -143,7 +338,12 @@ class ResidualDynamics(nn.Module):
         inverse_dynamics: the identified model; None for a purely learned model (then
             ``n_dof`` is required).
         residual: any module mapping ``(*batch, n_features)`` to ``(*batch, n_dof)``; default
-            ``MLP(n_features, n_dof, hidden=hidden, seed=seed)``.
+            the network ``residual_kind`` names.
+        residual_kind: the default residual: ``"mlp"``, ``MLP(n_features, n_dof,
+            hidden=hidden, seed=seed)`` (a network of the whole state), or ``"joint"``,
+            ``JointResidual(n_dof, n_features // n_dof, hidden=hidden, seed=seed)`` (each
+            joint's residual from its own features: with the default features its own q, qd,
+            qdd and a smooth Coulomb friction term).
         fine_tune: if True, theta is trained through `VirtualParameters` initialised at the
             identified theta (so it stays physically consistent: positive masses, PSD inertias,
             non-negative viscous friction); an inconsistent identified theta is first moved to a
@@ -176,8 +376,13 @@ class ResidualDynamics(nn.Module):
         n_dof: int | None = None,
         hidden: Sequence[int] = (64, 64),
         seed: int | None = 0,
+        residual_kind: str = "mlp",
     ) -> None:
         super().__init__()
+        if residual_kind not in _RESIDUAL_KINDS:
+            raise ValueError(
+                f"residual_kind must be one of {_RESIDUAL_KINDS}, got {residual_kind!r}"
+            )
         if inverse_dynamics is not None and not isinstance(inverse_dynamics, InverseDynamics):
             raise TypeError(
                 f"inverse_dynamics must be an InverseDynamics or None, got {type(inverse_dynamics)}"
@@ -207,7 +412,15 @@ class ResidualDynamics(nn.Module):
         self.n_features = 3 * self.n_dof if n_features is None else int(n_features)
         if features is not None and n_features is None and residual is None:
             raise ValueError("give n_features with custom features and the default residual")
-        if residual is None:
+        if residual is None and residual_kind == "joint":
+            if self.n_features % self.n_dof:
+                raise ValueError(
+                    f"a joint residual needs n_features to be a multiple of n_dof={self.n_dof}, "
+                    f"got {self.n_features}"
+                )
+            k = self.n_features // self.n_dof
+            residual = JointResidual(self.n_dof, k, hidden=hidden, seed=seed)
+        elif residual is None:
             residual = MLP(self.n_features, self.n_dof, hidden=hidden, seed=seed)
         if not isinstance(residual, nn.Module):
             raise TypeError(f"residual must be an nn.Module, got {type(residual)}")
