@@ -10,10 +10,15 @@ For each batch size, in one run on this machine:
 * Pinocchio ``computeJointTorqueRegressor`` called sample by sample from Python (the
   benchmark-only extra ``pin``), both discarding each result and storing it into a preallocated
   ``(B, 7, 70)`` array (the same job as a batched regressor);
-* MuJoCo ``mj_inverse`` sample by sample (torques, not a regressor: a reference point).
+* MuJoCo ``mj_inverse`` sample by sample (torques, not a regressor: a reference point);
+* torchjfa ``RigidBodyModel.regressor(..., compiled=True)`` (the C++ kernel generated for the
+  robot, ``torchjfa.dynamics._codegen``), float64 and float32, 1 and 2 threads, the output
+  allocated by each call as above; its generation and compile time, in an empty kernel cache
+  (a temporary ``TORCHJFA_CACHE_DIR``), is printed first and not part of the timings.
 
-It prints the ratios torchjfa / Pinocchio and the peak resident memory, and checks first that
-Pinocchio's model is the same robot: ``Y_pin @ pi_pin`` against ``Y @ nominal_theta``.
+It prints the ratios torchjfa / Pinocchio and the peak resident memory, checks first that
+Pinocchio's model is the same robot (``Y_pin @ pi_pin`` against ``Y @ nominal_theta``) and that
+the compiled kernel gives the default path's regressor, and ends with a summary table.
 
     python scripts/bench_regressor.py                 # batches 1e3, 1e4, 1e5; 1 and 2 threads
     python scripts/bench_regressor.py --batches 1000 --repeats 1   # quick
@@ -26,7 +31,9 @@ thread (OpenMP threads wait for busy cores); Pinocchio and MuJoCo run on one thr
 from __future__ import annotations
 
 import argparse
+import os
 import resource
+import tempfile
 import time
 from pathlib import Path
 
@@ -110,6 +117,25 @@ def run(
     print(f"{robot}: {n} DoF, {model.n_params} parameters, output (B, {n}, {model.n_params})")
     print(f"same robot: max |Y_pin pi_pin - Y theta| = {diff:.2e} N m over 50 random states")
     default_threads = torch.get_num_threads()
+    # the compiled kernel, built in an empty cache so that the time is a full build
+    previous = os.environ.get("TORCHJFA_CACHE_DIR")
+    with tempfile.TemporaryDirectory(prefix="torchjfa-bench-kernels-") as kernels:
+        os.environ["TORCHJFA_CACHE_DIR"] = kernels
+        try:
+            build = {dt: model.compile_regressor(dt) for dt in (torch.float64, torch.float32)}
+        finally:
+            if previous is None:
+                del os.environ["TORCHJFA_CACHE_DIR"]
+            else:
+                os.environ["TORCHJFA_CACHE_DIR"] = previous
+    Y_c = model.regressor(qs, qds, qdds, compiled=True)
+    Y_d = model.regressor(qs, qds, qdds)
+    rel = float((Y_c - Y_d).abs().max() / Y_d.abs().max())
+    print(
+        f"compiled kernel: generated and compiled in {build[torch.float64]:.1f} s (float64), "
+        f"{build[torch.float32]:.1f} s (float32), empty cache; not in the timings below. "
+        f"max |Y_compiled - Y| / max |Y| = {rel:.1e}"
+    )
 
     results = []
     for B in batches:
@@ -122,6 +148,14 @@ def run(
                 model.regressor(tq[:10], tqd[:10], tqdd[:10])  # warm-up
                 t = _best(lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd), repeats)
                 row[f"torchjfa_{str(dtype)[6:]}_t{nt}"] = B / t
+
+                def compiled(tq=tq, tqd=tqd, tqdd=tqdd):
+                    model.regressor(tq, tqd, tqdd, compiled=True)
+
+                compiled()  # warm-up
+                row[f"compiled_{str(dtype)[6:]}_t{nt}"] = B / _best(compiled, repeats)
+                if nt == threads[0] and dtype == torch.float64:
+                    row["cpu_compiled_float64"] = B / _best(compiled, repeats, time.process_time)
                 if nt == 1 and dtype == torch.float64:
                     row["cpu_torchjfa_float64"] = B / _best(
                         lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd),
@@ -184,7 +218,53 @@ def run(
                 f"f32/pin {f32 / row['pinocchio']:.2f}  "
                 f"f64/mj_inverse {f64 / row['mujoco_inverse']:.2f}"
             )
+        for nt in threads:
+            f64, f32 = row[f"compiled_float64_t{nt}"], row[f"compiled_float32_t{nt}"]
+            print(
+                f"  compiled {nt or default_threads} thread(s): f64 {f64:>10.0f}  f32 {f32:>10.0f}"
+                f" | ratios f64/pin {f64 / row['pinocchio']:.2f}  "
+                f"f64/pin_store {f64 / row['pinocchio_store']:.2f}  "
+                f"f32/pin {f32 / row['pinocchio']:.2f}  "
+                f"f64/default {f64 / row[f'torchjfa_float64_t{nt}']:.2f}"
+            )
+        if "cpu_compiled_float64" in row:
+            print(
+                f"  compiled CPU-time ratio f64/pin ({threads[0] or default_threads} thread(s)): "
+                f"{row['cpu_compiled_float64'] / row['cpu_pinocchio']:.2f}"
+            )
+    _summary(results, threads, default_threads, build)
     return results
+
+
+def _k(x: float) -> str:
+    return f"{x / 1e3:.0f}k"
+
+
+def _summary(results, threads, default_threads, build) -> None:
+    """The table of docs/benchmarks.md: samples per second, ratios to Pinocchio."""
+    names = [str(nt or default_threads) for nt in threads]
+    head = ["batch", "Pinocchio /s", "mj_inverse /s"]
+    for kind in ("default", "compiled"):
+        head += [f"{kind} f64, {t} thr" for t in names] + [f"{kind} f32, {names[-1]} thr"]
+    head += [f"f64/Pinocchio default ({' / '.join(names)} thr)", "compiled", "peak RSS"]
+    print(
+        f"\nsummary (samples/s; compiled kernel build {build[torch.float64]:.1f} s f64, "
+        f"{build[torch.float32]:.1f} s f32, excluded):"
+    )
+    print("| " + " | ".join(head) + " |")
+    print("| " + " | ".join(["---"] * len(head)) + " |")
+    for row in results:
+        pin_rate = row["pinocchio"]
+        cells = [f"{row['batch']:.0e}".replace("+0", ""), _k(pin_rate), _k(row["mujoco_inverse"])]
+        for kind in ("torchjfa", "compiled"):
+            cells += [_k(row[f"{kind}_float64_t{nt}"]) for nt in threads]
+            cells.append(_k(row[f"{kind}_float32_t{threads[-1]}"]))
+        for kind in ("torchjfa", "compiled"):
+            cells.append(
+                " / ".join(f"{row[f'{kind}_float64_t{nt}'] / pin_rate:.2f}" for nt in threads)
+            )
+        cells.append(f"{row['peak_rss_mb'] / 1024:.1f} GB")
+        print("| " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
