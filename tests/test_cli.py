@@ -124,6 +124,32 @@ def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys)
     assert "joint weights (weighted least squares, mean 1)" not in report["noise"]
 
 
+def test_compiled_regressor_gives_the_same_fit(head_csv, tmp_path, capsys, monkeypatch):
+    if not any(shutil.which(c) for c in ("g++", "c++", "clang++")):
+        pytest.skip("no C++ compiler")
+    monkeypatch.setenv("TORCHJFA_CACHE_DIR", str(tmp_path / "kernels"))
+    reports = []
+    for flag in ((), ("--compiled",)):
+        out = tmp_path / f"r{len(flag)}"
+        code, _, err = _identify(
+            capsys,
+            "head",
+            head_csv,
+            *("--estimator", "ridge", "--weighting", "none", "--no-project", "--out", out),
+            *flag,
+            *FAST,
+        )
+        assert code == 0, err
+        reports.append(json.loads((out / "report.json").read_text()))
+    # ridge without projection: these few seconds of data leave OLS so ill-conditioned that
+    # round-off changes its rank, and the projection's LBFGS path amplifies round-off too
+    a, b = reports
+    assert "--compiled" in b["settings"]["command"]
+    assert b["train_rmse"] == pytest.approx(a["train_rmse"], rel=1e-9)
+    va, vb = a["validation"]["unconstrained"]["nmse"], b["validation"]["unconstrained"]["nmse"]
+    assert vb == pytest.approx(va, rel=1e-9)
+
+
 @pytest.fixture()
 def columns(head_csv):
     log = read_log(head_csv)

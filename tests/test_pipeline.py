@@ -5,6 +5,7 @@ References are independent of the streaming code: the regressor of the whole log
 """
 
 import math
+import shutil
 import tracemalloc
 
 import numpy as np
@@ -77,6 +78,17 @@ def test_stream_compressed_npz_equals_in_memory(head, reference, files):
     m = stream_moments(model, files[0], chunk_size=256)
     assert isinstance(m, Moments) and m.n_features == model.n_params
     assert m.n_rows == N_SAMPLES * model.n_dof
+    assert_moments_equal(m, reference)
+
+
+def test_stream_with_the_compiled_regressor_equals_in_memory(
+    head, reference, files, tmp_path, monkeypatch
+):
+    if not any(shutil.which(c) for c in ("g++", "c++", "clang++")):
+        pytest.skip("no C++ compiler")
+    monkeypatch.setenv("TORCHJFA_CACHE_DIR", str(tmp_path))
+    model, _, _ = head
+    m = stream_moments(model, files[1], chunk_size=256, compiled=True)
     assert_moments_equal(m, reference)
 
 
@@ -214,7 +226,7 @@ def test_npz_reader_memory_does_not_grow_with_the_log(tmp_path, save, monkeypatc
     is the regressor's batch, checked in the next test, so the regressor is stubbed here)."""
     model = RigidBodyModel.from_urdf(TWO_LINK)
     monkeypatch.setattr(
-        model, "regressor", lambda q, qd, qdd: torch.ones(q.shape[0], 2, model.n_params)
+        model, "regressor", lambda q, qd, qdd, **kw: torch.ones(q.shape[0], 2, model.n_params)
     )
     g = torch.Generator().manual_seed(0)
     peaks = {}

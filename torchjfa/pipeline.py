@@ -273,6 +273,7 @@ def stream_moments(
     progress: bool = False,
     joint_weights=None,
     per_joint: bool = False,
+    compiled: bool = False,
 ) -> Moments | list[Moments]:
     """`Moments` of ``tau ~ Y(q, qd, qdd) theta`` over all samples of the logs, streamed.
 
@@ -299,6 +300,9 @@ def stream_moments(
             squares, see `residual_joint_weights`); default 1.
         per_joint: return, in place of each `Moments`, a list of ``n_dof`` `Moments` of each
             joint's rows alone (model joint order).
+        compiled: form the regressor with the C++ kernel generated for the robot
+            (`RigidBodyModel.regressor` with ``compiled=True``: several times faster, needs a
+            C++ compiler; the first call compiles it, about 2 s for 7 joints).
 
     Returns:
         One `Moments` with ``n_features = model.n_params`` and one row per sample and joint,
@@ -345,7 +349,7 @@ def stream_moments(
                     (v if src.perm is None else v[:, src.perm]).to(device) for v in arrays
                 )
                 try:
-                    Y = model.regressor(q, qd, qdd)  # (b - a, n_dof, p)
+                    Y = model.regressor(q, qd, qdd, compiled=compiled)  # (b - a, n_dof, p)
                     check_finite(tau, "tau")
                 except ValueError as err:
                     raise ValueError(f"{src.name}, samples [{a}, {b}): {err}") from err
@@ -397,7 +401,7 @@ def residual_joint_weights(
             ``1 / floor`` times the smallest).
         chunk_size: as for `stream_moments`.
         **kwargs: more `stream_moments` options (``distributed``, ``group``, ``device``,
-            ``progress``).
+            ``progress``, ``compiled``).
 
     Returns:
         ``(n_dof,)`` float64 weights, mean 1, in the model's joint order.
@@ -519,6 +523,7 @@ def identify(
     progress: bool = False,
     jackknife: int = 0,
     joint_weights=None,
+    compiled: bool = False,
 ) -> IdentificationResult:
     """Identify a robot's parameters from joint logs in one streaming pass.
 
@@ -559,6 +564,8 @@ def identify(
         joint_weights: ``(n_dof,)`` weight of each joint's equations (weighted least squares;
             e.g. `residual_joint_weights`). ``input_noise`` must then be of the weighted rows
             (`torchjfa.sim.regressor_noise` takes the same weights).
+        compiled: form the regressor with the robot's compiled C++ kernel (see
+            `stream_moments`).
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -610,6 +617,7 @@ def identify(
         device=device,
         progress=progress,
         joint_weights=joint_weights,
+        compiled=compiled,
     )
     folds = stats if n_folds is not None else None
     moments = sum(stats[1:], stats[0].copy()) if folds is not None else stats
