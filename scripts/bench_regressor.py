@@ -209,24 +209,20 @@ def run(
                 f"{row['cpu_torchjfa_float64'] / pin_cpu:.2f}, out= f64/pin "
                 f"{row['cpu_torchjfa_float64_out'] / pin_cpu:.2f} (pinocchio {pin_cpu:.0f}/s CPU)"
             )
-        for nt in threads:
-            f64, f32 = row[f"torchjfa_float64_t{nt}"], row[f"torchjfa_float32_t{nt}"]
-            print(
-                f"  torchjfa {nt or default_threads} thread(s): f64 {f64:>10.0f}  f32 {f32:>10.0f}"
-                f" | ratios f64/pin {f64 / row['pinocchio']:.2f}  "
-                f"f64/pin_store {f64 / row['pinocchio_store']:.2f}  "
-                f"f32/pin {f32 / row['pinocchio']:.2f}  "
-                f"f64/mj_inverse {f64 / row['mujoco_inverse']:.2f}"
-            )
-        for nt in threads:
-            f64, f32 = row[f"compiled_float64_t{nt}"], row[f"compiled_float32_t{nt}"]
-            print(
-                f"  compiled {nt or default_threads} thread(s): f64 {f64:>10.0f}  f32 {f32:>10.0f}"
-                f" | ratios f64/pin {f64 / row['pinocchio']:.2f}  "
-                f"f64/pin_store {f64 / row['pinocchio_store']:.2f}  "
-                f"f32/pin {f32 / row['pinocchio']:.2f}  "
-                f"f64/default {f64 / row[f'torchjfa_float64_t{nt}']:.2f}"
-            )
+        for path in ("torchjfa", "compiled"):
+            for nt in threads:
+                f64, f32 = row[f"{path}_float64_t{nt}"], row[f"{path}_float32_t{nt}"]
+                last = (
+                    f"f64/mj_inverse {f64 / row['mujoco_inverse']:.2f}"
+                    if path == "torchjfa"
+                    else f"f64/default {f64 / row[f'torchjfa_float64_t{nt}']:.2f}"
+                )
+                print(
+                    f"  {path} {nt or default_threads} thread(s): f64 {f64:>10.0f}  "
+                    f"f32 {f32:>10.0f} | ratios f64/pin {f64 / row['pinocchio']:.2f}  "
+                    f"f64/pin_store {f64 / row['pinocchio_store']:.2f}  "
+                    f"f32/pin {f32 / row['pinocchio']:.2f}  {last}"
+                )
         if "cpu_compiled_float64" in row:
             print(
                 f"  compiled CPU-time ratio f64/pin ({threads[0] or default_threads} thread(s)): "
