@@ -231,13 +231,7 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             w[k], dw[k] = wp, dwp
             v[k] = em.vadd(vp, zq)
             dv[k] = em.vadd(dvp, em.vscale(zk, qddk), em.cross(wp, zq))
-    ancestors = []
-    for i in range(n):
-        chain, k = [], i
-        while k >= 0:
-            chain.append(k)
-            k = tree.parent[k]
-        ancestors.append(tuple(reversed(chain)))
+    ancestors = tree.ancestors()
     entries = {}
     for i in range(n):
         Ri, pi = R[i], pos[i]

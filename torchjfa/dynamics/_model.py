@@ -212,19 +212,13 @@ class RigidBodyModel:
             x, y, z = ax64.unbind(-1)
             o = torch.zeros_like(x)
             K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(-1, 3, 3)
-            ancestors = []
-            for i in range(len(t.parent)):
-                chain, k = [], i
-                while k >= 0:
-                    chain.append(k)
-                    k = t.parent[k]
-                ancestors.append(tuple(reversed(chain)))
+            ancestors = t.ancestors()
             pos_point = t.pos_fixed + np.einsum("nij,nj->ni", t.rot_fixed, t.axis_point)
             self._constants[key] = TreeConstants(
                 parent=tuple(t.parent),
                 revolute=tuple(jt == "revolute" for jt in t.joint_types),
                 has_point=tuple(bool(np.any(p != 0.0)) for p in t.axis_point),
-                ancestors=tuple(ancestors),
+                ancestors=ancestors,
                 rot_fixed=rot,
                 pos_fixed=torch.as_tensor(t.pos_fixed, **kw),
                 axis=axis,

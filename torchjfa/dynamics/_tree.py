@@ -70,6 +70,17 @@ class KinematicTree:
     gravity: np.ndarray
     fixed_inertial: list[dict[str, np.ndarray]] = field(default_factory=list)
 
+    def ancestors(self) -> tuple[tuple[int, ...], ...]:
+        """Per body i, the joints that move it: its ancestors and i itself, root first."""
+        out = []
+        for i in range(len(self.parent)):
+            chain, k = [], i
+            while k >= 0:
+                chain.append(k)
+                k = self.parent[k]
+            out.append(tuple(reversed(chain)))
+        return tuple(out)
+
 
 # ----------------------------------------------------------------------------- small maths
 def rpy_matrix(rpy) -> np.ndarray:
