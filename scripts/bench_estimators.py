@@ -103,6 +103,11 @@ def run(
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, numpy {np.__version__}")
     if missing:
         print(f"estimators not in torchjfa.estimators (skipped): {', '.join(missing)}")
+    # the EM loop of JFA / BayesianJFA is compiled by Numba once per machine and loaded from its
+    # disk cache once per process: a fixed cost, reported here and kept out of the timings below
+    X, y = next(make_data(200, 20, seed=seed))
+    t, _ = _time(lambda: estimators.BayesianJFA(max_iter=10).fit(X, y))
+    print(f"first Bayesian JFA fit in this process (loads or compiles the EM loop): {t:.2f} s")
     for d in dims:
         results.append(_bench_one(n, d, available, n_small, n_large, iter_probe, repeat, seed))
     return results

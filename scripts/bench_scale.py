@@ -11,7 +11,8 @@ whose peak resident memory (``ru_maxrss``) is reported:
   that reads the data;
 - ``bjfa``: the streaming Bayesian JFA path of `torchjfa.pipeline`: `Moments.update` per chunk,
   then ``BayesianJFA(fit_intercept=False).fit_moments`` (time per EM iteration = fit time /
-  E-steps);
+  E-steps); the once-per-process load of the compiled EM loop (about 0.4 s, a first fit
+  before the timed one) is printed apart and not counted;
 - ``idle``: a process that only imports torch and torchjfa (the memory floor).
 
 Times exclude generating the rows (measured and subtracted per chunk). Prints the ratios
@@ -86,6 +87,11 @@ def measure(method: str, n: int, *, d: int = D, chunk: int = 65_536, seed: int =
             gen += tg
         out["seconds"] = time.perf_counter() - t0 - gen
     elif method == "bjfa":
+        # the EM loop is compiled by Numba once per machine and loaded from its cache once per
+        # process: a fixed cost, measured here and kept out of the timings
+        t0 = time.perf_counter()
+        BayesianJFA(max_iter=10).fit(*next(_chunks(200, d, 200, seed + 1))[:2])
+        out["load_seconds"] = time.perf_counter() - t0
         m = Moments.zeros(d)
         t0, gen = time.perf_counter(), 0.0
         for X, y, tg in _chunks(n, d, chunk, seed):
@@ -181,7 +187,8 @@ def _print_row(row: dict) -> None:
         f"{b['pass_seconds']:7.3f} s + fit {b['fit_seconds']:6.3f} s ({b['n_estep']} E-steps, "
         f"{b['stop_reason']}), {b['peak_mb']:6.0f} MB | bjfa/lstsq {ratio_ls} | "
         f"bjfa/xtx {b['seconds'] / x['seconds']:6.2f} | "
-        f"EM {1e6 * b['seconds_per_iter']:6.1f} us/iter"
+        f"EM {1e6 * b['seconds_per_iter']:6.1f} us/iter | "
+        f"EM loop load {b['load_seconds']:.2f} s (once per process, not counted)"
     )
 
 

@@ -306,7 +306,7 @@ def kfold_moments(X, y, n_folds: int, weights=None) -> list[Moments]:
     Returns:
         A list of ``n_folds`` `Moments`; their sum is the statistics of the whole data set.
     """
-    X, y, weights = check_Xy(X, y, weights)
+    X, y, weights = check_Xy(X, y, weights, finite=False)  # Moments.update finds NaN and inf
     n = X.shape[0]
     if not 2 <= n_folds <= n:
         raise ValueError(

@@ -223,10 +223,20 @@ def test_chunks_equal_whole():
                 getattr(other, key), getattr(whole, key), rtol=1e-8, atol=1e-10, msg=key
             )
         torch.testing.assert_close(other.lower_bound_, whole.lower_bound_, rtol=1e-10, atol=0)
-    # converged with the defaults, the answers agree too
+    # converged with the defaults, the answers agree too, to the stopping accuracy: the
+    # round-off of the summed chunks changes the path (SQUAREM's accept/reject, the
+    # iteration at which the tolerance stops it). Eq. (4) of the seed's estimator is not
+    # identified (the note), so there only the noisy-input predictor has to agree; with the
+    # input noise known, both estimates are identified and agree to far below it.
     a, b = BayesianJFA().fit(X, y), BayesianJFA().fit_moments(chunks)
     assert a.converged_ and b.converged_
-    torch.testing.assert_close(b.coef_, a.coef_, rtol=1e-4, atol=1e-6)  # stopping accuracy
+    torch.testing.assert_close(b.coef_noisy_, a.coef_noisy_, rtol=1e-4, atol=1e-6)
+    noise = torch.full((5,), 0.5, dtype=F64)
+    a = BayesianJFA(input_noise=noise).fit(X, y)
+    b = BayesianJFA(input_noise=noise).fit_moments(chunks)
+    assert a.converged_ and b.converged_
+    for key in ("coef_", "coef_noisy_"):
+        torch.testing.assert_close(getattr(b, key), getattr(a, key), rtol=1e-8, atol=1e-10)
 
 
 def test_predict_switch_and_intercepts():
@@ -251,6 +261,22 @@ def test_float32_input_and_progress_bar():
     assert e32.converged_ and e64.converged_
     assert e32.coef_.dtype == F64 and e32.noise_x_.dtype == F64
     torch.testing.assert_close(e32.coef_, e64.coef_, rtol=1e-3, atol=1e-4)
+
+
+@pytest.mark.parametrize("accelerate", [False, True])
+def test_progress_bar_blocks_do_not_change_the_path(monkeypatch, accelerate):
+    # with a bar, the compiled loop runs in blocks and resumes; the path must be the same
+    import torchjfa.estimators._jfa as jfa_module
+
+    X, y, _ = _model_data(300, 5, seed=11, n_irrelevant=2)
+    kw = dict(max_iter=700, tol=0.0, coef_tol=0.0, accelerate=accelerate)
+    whole = BayesianJFA(**kw).fit(X, y)
+    monkeypatch.setattr(jfa_module, "_BAR_BLOCK", 37)
+    blocks = BayesianJFA(verbose=True, **kw).fit(X, y)
+    assert blocks.n_iter_ == whole.n_iter_ == 700
+    assert blocks.n_accelerated_ == whole.n_accelerated_ and blocks.n_estep_ == whole.n_estep_
+    assert torch.equal(blocks.lower_bound_, whole.lower_bound_)
+    assert torch.equal(blocks.coef_, whole.coef_)
 
 
 def test_bad_input_raises():

@@ -1,17 +1,27 @@
 """The update equations of (Bayesian) joint factor analysis regression, from moments alone.
 
-Pure array functions behind `torchjfa.estimators.JFA` and `BayesianJFA` (``_jfa.py``): the
+The compiled loop behind `torchjfa.estimators.JFA` and `BayesianJFA` (``_jfa.py``): the
 E-step, Q(w)/Q(alpha) and M-step updates, and the lower bound of ``docs/bayesian-jfa.md``, in
 standardised units, plus SQUAREM's extrapolation (Varadhan and Roland, Scand. J. Stat. 2008)
 used to speed up the slow directions. Each iteration costs one ``d x d`` mat-vec, whatever ``N``.
 
-Why NumPy here: after the single pass over the data, the loop works on ``O(d^2)`` numbers
-(``d`` is a few hundred at most), so its time is per-operation overhead, not arithmetic. A
-float64 NumPy operation on a ``(2, d)`` array costs about 1 us, a torch CPU operation 3 to 5 us
-and a CUDA launch more (plus a sync for every stopping test). The estimators therefore run the
-loop on CPU NumPy copies of the moments, whatever the device of the data, and hand tensors on
-the data's device back. The z and x halves of the model are stacked into ``(2, d)`` arrays
-(row 0: z, row 1: x) so that each line below updates both at once.
+Why Numba here: after the single pass over the data, the loop works on ``O(d^2)`` numbers
+(``d`` is a few hundred at most) for thousands of iterations. Written as NumPy array operations
+its time was per-operation overhead, not arithmetic (about 65 us per iteration at ``d = 77``,
+some 60 operations of about 1 us; torch's are 3 to 5 us each), and the iterations cost many
+times the pass over the data. Compiled as loops over the inputs, an iteration costs what its
+arithmetic costs, about 3 to 4 us at ``d = 77`` (``scripts/bench_estimators.py`` prints it).
+The loop runs on CPU float64 NumPy copies of the moments, whatever the device of the data; the
+estimators hand tensors on the data's device back. It is compiled on first use and cached on
+disk by Numba (``cache=True``), without fast-math: the arithmetic is IEEE float64, as written.
+
+The state is one ``(9, d)`` array plus ``psi_y``; its rows are `_MZ`, `_MX` (the posterior
+means ``<w_z>``, ``<w_x>``), `_VZ`, `_VX` (their variances; 0 for maximum likelihood), `_WZ`,
+`_WX` (second moments ``<w^2>``), `_B` (the rate of Q(alpha), ``<alpha> = (a0 + 1) / b``;
+unused for maximum likelihood), `_PZ`, `_PX` (psi_z, psi_x). The E-step writes its expected
+statistics into one ``(5, d)`` array with rows `_K` (the noisy-input predictor ``k``), `_SZZ`,
+`_STT`, `_SZT`, `_SXT` and returns the scalars ``R = sum 1/D``, ``c = psi_y + R`` and the
+residual sum of squares ``S_ee``.
 """
 
 from __future__ import annotations
@@ -19,128 +29,423 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
+from numba import njit
 
 _LOG_2PI = math.log(2.0 * math.pi)
 _STEP_GROWTH = 4.0  # SQUAREM: growth of the largest step after a step at the cap is accepted
+_MZ, _MX, _VZ, _VX, _WZ, _WX, _B, _PZ, _PX = range(9)
+_K, _SZZ, _STT, _SZT, _SXT = range(5)
+# the loop's scalars, kept in one float array so that a fit can run in blocks (progress bar)
+_C_COUNT, _C_L, _C_STEP, _C_ACC, _C_ESTEP, _C_PSY, _C_R, _C_C, _C_SEE, _C_REASON = range(10)
+REASONS = ("max_iter", "bound", "coef")
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
-class _Stats:
-    """Standardised moments of the active columns (unit variance, centred if asked), float64."""
+@njit(inline="always", **_JIT)
+def _log_acc(acc, x):
+    """Multiply ``x > 0`` into the running product ``acc = (prod, logs)`` of a sum of logs.
 
-    __slots__ = ("n", "xx", "xy", "yy", "dg")
-
-    def __init__(self, n: float, xx: np.ndarray, xy: np.ndarray, yy: float) -> None:
-        self.n, self.xx, self.xy, self.yy = float(n), xx, xy, float(yy)
-        self.dg = np.ascontiguousarray(np.diagonal(xx))
-
-
-# A state is the tuple (M, V, W2, b, P, psy): M = [<w_z>; <w_x>] and V = their posterior
-# variances, shape (2, d) (V = 0 for maximum likelihood), W2 = M^2 + V the second moments, b the
-# rate of Q(alpha), shape (d,) (<alpha> = (a0 + 1) / b; unused for maximum likelihood),
-# P = [psi_z; psi_x], shape (2, d), and psy = psi_y, a float.
-# Hyper-parameters hp = (bayes, a0 + 1, b0, floor, fixed_x, floor_y).
+    The log is taken only when the product leaves [1e-64, 1e64], so a sum of ``d`` logs costs
+    a few calls to ``log``, not ``d`` (the bound's three sums of logs were most of an E-step).
+    Factors within 1e+-244 cannot overflow or underflow it. Finish with `_log_end`.
+    """
+    prod = acc[0] * x
+    if 1e-64 < prod < 1e64:
+        return prod, acc[1]
+    return 1.0, acc[1] + math.log(prod)
 
 
-def _estep(S: _Stats, st: tuple, hp: tuple, const: float, bound: bool = True) -> tuple:
+@njit(inline="always", **_JIT)
+def _log_end(acc):
+    return acc[1] + math.log(acc[0])
+
+
+@njit(**_JIT)
+def _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, bound, es, work):
     """The note's E-step, Q(z, t) and its expected statistics, and the lower bound there.
 
-    The bound is evaluated with this Q(z, t), i.e. at its optimum for the state ``st`` (for
-    maximum likelihood it is then the log-likelihood); ``bound=False`` skips it (returns NaN).
-    Returns ``(es, L)`` with ``es = (k, R, c, S_ee, szz, stt, Ct, I)``: the noisy-input
-    predictor ``k``, ``R = sum 1/D``, ``c = psy + R``, the residual sum of squares, ``S_zz``,
-    ``S_tt``, ``Ct = [S_zt; S_xt]`` and ``I = 1 / P``.
+    Writes ``es`` (see the module docstring); ``work`` is a ``(7, d)`` scratch array and
+    ``dg`` the diagonal of ``xx``. The bound is evaluated with this Q(z, t), i.e. at its
+    optimum for the state (for maximum likelihood it is then the log-likelihood), without the
+    state-independent terms of `bound_const`; ``bound=False`` skips it (returns NaN). Returns
+    ``(R, c, S_ee, L)``.
+
+    The loops over inputs hold no sums, so that they vectorise (IEEE arithmetic, no
+    reordering); the sums over inputs are separate short loops.
     """
-    M, V, W2, b, P, psy = st
-    n, dg = S.n, S.dg
-    I = 1.0 / P
-    MI = M * I
-    A = (W2 * I).sum(0)
-    A += 1.0
-    iA = 1.0 / A
-    EF = MI * iA  # [E; F]
-    E = EF[0]
-    D = I[0] - MI[0] * E
-    invD = 1.0 / D
-    k = E * MI[1]
-    k *= invD  # the noisy-input predictor, eq. (3)
-    R = float(invD.sum())
+    d = xy.shape[0]
+    k = es[_K]
+    iA, E, F, invD, s_xe, lg, per = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    for m in range(d):
+        i0 = 1.0 / st[_PZ, m]
+        i1 = 1.0 / st[_PX, m]
+        mi0 = st[_MZ, m] * i0
+        mi1 = st[_MX, m] * i1
+        A = 1.0 + st[_WZ, m] * i0 + st[_WX, m] * i1
+        ia = 1.0 / A
+        e = mi0 * ia
+        D = i0 - mi0 * e
+        iD = 1.0 / D
+        iA[m] = ia
+        E[m] = e
+        F[m] = mi1 * ia
+        invD[m] = iD
+        k[m] = e * mi1 * iD  # the noisy-input predictor, eq. (3)
+        lg[m] = st[_PZ, m] * st[_PX, m] * A * D  # for the bound
+    R = 0.0
+    for m in range(d):
+        R += invD[m]
     c = psy + R
-    s_xe = S.xy - S.xx @ k  # the one d x d product: X^T e
-    S_ee = S.yy - float(k @ (S.xy + s_xe))
-    rho = invD * (1.0 / c)
-    rs = rho * s_xe
-    U = np.empty((3, dg.shape[0]))  # [sum <z>^2; sum <z> x; diag X^T X]
-    np.multiply(k, dg, out=U[1])
-    U[1] += rs
-    np.add(U[1], rs, out=U[0])
-    U[0] *= k
-    U[0] += (S_ee * rho) * rho
-    U[2] = dg
-    szz_d = invD - rho * invD  # diag Sigma_zz
-    ezd = E * szz_d  # diag Sigma_zt
-    Ct = E * U[:2]
-    Ct += EF[1] * U[1:]  # [sum <z><t>; S_xt]
-    stt = (EF * Ct).sum(0)
-    stt += n * (iA + E * ezd)
-    Ct[0] += n * ezd  # S_zt
-    szz = U[0] + n * szz_d
-    es = (k, R, c, S_ee, szz, stt, Ct, I)
+    ic = 1.0 / c
+    s_xe[:] = xy
+    for j in range(d):  # the one d x d product, X^T e = X^T y - (X^T X) k, column by column
+        kj = k[j]
+        row = xx[j]  # = column j (symmetric): contiguous, so the inner loop vectorises
+        for m in range(d):
+            s_xe[m] -= row[m] * kj
+    S_ee = yy
+    for m in range(d):
+        S_ee -= k[m] * (xy[m] + s_xe[m])
+    for m in range(d):
+        g = dg[m]
+        e = E[m]
+        f = F[m]
+        rho = invD[m] * ic
+        rs = rho * s_xe[m]
+        szx = k[m] * g + rs  # sum <z> x
+        sz2 = k[m] * (szx + rs) + S_ee * rho * rho  # sum <z>^2
+        szz_d = invD[m] - rho * invD[m]  # diag Sigma_zz
+        ezd = e * szz_d  # diag Sigma_zt
+        ct0 = e * sz2 + f * szx  # sum <z><t>
+        sxt = e * szx + f * g
+        stt = e * ct0 + f * sxt + n * (iA[m] + e * ezd)
+        szt = ct0 + n * ezd
+        szz = sz2 + n * szz_d
+        es[_SZZ, m] = szz
+        es[_STT, m] = stt
+        es[_SZT, m] = szt
+        es[_SXT, m] = sxt
+        # the bound: -1/2 sum_m [...] collects the per-input terms; these are the ones
+        # without logs (and without the 2 a log b_m - log V_zm V_xm of the Bayesian model)
+        qz = st[_WZ, m] * stt - 2.0 * st[_MZ, m] * szt + szz
+        qx = st[_WX, m] * stt - 2.0 * st[_MX, m] * sxt + g
+        pm = qz / st[_PZ, m] + qx / st[_PX, m] + stt
+        if bayes:
+            pm += 2.0 * a * (0.5 * (st[_WZ, m] + st[_WX, m]) + b0) / st[_B, m]
+        per[m] = pm
     if not bound:
-        return es, math.nan
-    # the bound: -1/2 sum_m [...] collects the per-input terms
-    Q = W2 * stt
-    Q -= 2.0 * (M * Ct)
-    Q[0] += szz
-    Q[1] += dg
-    per = n * float(np.log(P[0] * P[1] * A * D).sum()) + float(np.vdot(Q, I)) + float(stt.sum())
-    if hp[0]:
-        a, b0 = hp[1], hp[2]
-        quad = float(np.vdot(W2.sum(0) * 0.5 + b0, 1.0 / b)) + float(np.log(b).sum())
-        per += 2.0 * a * quad - float(np.log(V[0] * V[1]).sum())
-    L = -0.5 * n * math.log(c) - (psy * S_ee / c + n * R) / (2.0 * c) - 0.5 * per
-    return es, L + const
-
-
-def _update(S: _Stats, es: tuple, st: tuple, hp: tuple) -> tuple:
-    """Q(w_z), Q(w_x), Q(alpha) (or the maximum-likelihood W), then the M-step for the psi's."""
-    _, R, c, S_ee, szz, stt, Ct, I = es
-    V, b, P, psy = st[1], st[3], st[4], st[5]
-    bayes, a, b0, floor, fixed_x, floor_y = hp
+        return R, c, S_ee, math.nan
+    total = 0.0
+    acc = (1.0, 0.0)  # sum_m log(psi_z psi_x A D)
+    for m in range(d):
+        total += per[m]
+        acc = _log_acc(acc, lg[m])
+    total += n * _log_end(acc)
     if bayes:
-        V = stt * I
-        V += a / b
-        V = np.reciprocal(V, out=V)
-        M = V * Ct
-        M *= I
-        W2 = M * M
-        W2 += V
-        b = W2.sum(0)
-        b *= 0.5
-        b += b0
-    else:
-        M = Ct / stt
-        W2 = M * M
-    Q = W2 * stt
-    Q -= 2.0 * (M * Ct)
-    Q[0] += szz
-    Q[1] += S.dg
-    Q *= 1.0 / S.n
-    Pn = np.maximum(Q, floor, out=Q)
-    if fixed_x:
-        Pn[1] = P[1]
+        lb = (1.0, 0.0)  # sum_m log b_m
+        lv = (1.0, 0.0)  # sum_m log(V_zm V_xm)
+        for m in range(d):
+            lb = _log_acc(lb, st[_B, m])
+            lv = _log_acc(lv, st[_VZ, m] * st[_VX, m])
+        total += 2.0 * a * _log_end(lb) - _log_end(lv)
+    L = -0.5 * n * math.log(c) - (psy * S_ee / c + n * R) / (2.0 * c) - 0.5 * total
+    return R, c, S_ee, L
+
+
+@njit(**_JIT)
+def _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y):
+    """Q(w_z), Q(w_x), Q(alpha) (or the maximum-likelihood W), then the M-step for the psi's.
+
+    Updates ``st`` in place from the E-step's ``es``; returns the new ``psi_y``.
+    """
+    d = dg.shape[0]
+    for m in range(d):
+        i0 = 1.0 / st[_PZ, m]
+        i1 = 1.0 / st[_PX, m]
+        stt = es[_STT, m]
+        szt = es[_SZT, m]
+        sxt = es[_SXT, m]
+        if bayes:
+            ea = a / st[_B, m]
+            vz = 1.0 / (stt * i0 + ea)
+            vx = 1.0 / (stt * i1 + ea)
+            mz = vz * szt * i0
+            mx = vx * sxt * i1
+        else:
+            vz = 0.0
+            vx = 0.0
+            mz = szt / stt
+            mx = sxt / stt
+        wz = mz * mz + vz
+        wx = mx * mx + vx
+        st[_MZ, m] = mz
+        st[_MX, m] = mx
+        st[_VZ, m] = vz
+        st[_VX, m] = vx
+        st[_WZ, m] = wz
+        st[_WX, m] = wx
+        if bayes:
+            st[_B, m] = 0.5 * (wz + wx) + b0
+        st[_PZ, m] = max((wz * stt - 2.0 * mz * szt + es[_SZZ, m]) / n, floor)
+        if not fixed_x:
+            st[_PX, m] = max((wx * stt - 2.0 * mx * sxt + dg[m]) / n, floor)
     r = psy / c
-    psy = max(r * r * S_ee / S.n + r * R, floor_y)
-    return M, V, W2, b, Pn, psy
+    return max(r * r * S_ee / n + r * R, floor_y)
 
 
-def _bound_const(n: float, d: int, hp: tuple) -> float:
+@njit(**_JIT)
+def _packed_rows(bayes, fixed_x):
+    """The state rows in a packed vector, in order (padded with -1 to one length); the first
+    two, the means, are packed as they are, the others in log."""
+    px = -1 if fixed_x else _PX
+    if bayes:
+        return (_MZ, _MX, _VZ, _VX, _B, _PZ, px)
+    return (_MZ, _MX, _PZ, px, -1, -1, -1)
+
+
+@njit(**_JIT)
+def th_size(d, bayes, fixed_x):
+    """Length of a packed state (`_pack`) for ``d`` inputs."""
+    return ((5 if bayes else 2) + (0 if fixed_x else 1)) * d + 1
+
+
+_ULP = 2.0**-52  # a positive float64's bits times this: 1023 + a piecewise-linear log2
+_LO = float(np.float64(1e-300).view(np.int64)) * _ULP  # the range the packed values are held to
+_HI = float(np.float64(1e300).view(np.int64)) * _ULP
+
+
+@njit(**_JIT)
+def _pack(st, psy, bayes, fixed_x, th):
+    """Write the free entries of a state into ``th``: means as they are, variances in log.
+
+    The "log" of a variance is its float64 bit pattern read as an integer and scaled by
+    2^-52: 1023 + log2(x) to within 0.09, exact at powers of 2, monotone, continuous, and
+    exactly invertible (`_unpack`). SQUAREM only needs a map that keeps variances positive and
+    spreads their orders of magnitude evenly; this one costs an integer conversion where
+    ``math.log`` costs most of a sweep.
+    """
+    d = st.shape[1]
+    j = 0
+    rows = _packed_rows(bayes, fixed_x)
+    n_rows = th.shape[0] // d
+    for i in range(n_rows):
+        row = st[rows[i]]
+        if i < 2:
+            th[j : j + d] = row
+        else:
+            bits = row.view(np.int64)
+            for m in range(d):
+                th[j + m] = bits[m] * _ULP
+        j += d
+    one = np.empty(1)
+    one[0] = psy
+    th[j] = one.view(np.int64)[0] * _ULP
+
+
+@njit(inline="always", **_JIT)
+def _unlog(t, lo):
+    """Inverse of `_pack`'s log, held to [lo, 1e300] (NaN gives lo)."""
+    if not t >= lo:
+        t = lo
+    return min(t, _HI) / _ULP
+
+
+@njit(**_JIT)
+def _unpack(th, like, bayes, floor, fixed_x, floor_y, out):
+    """Inverse of `_pack` into ``out``; the rows not packed (psi_x if fixed; V and b for
+    maximum likelihood) are copied from ``like``. Returns psi_y."""
+    d = like.shape[1]
+    out[:] = like
+    rows = _packed_rows(bayes, fixed_x)
+    n_rows = th.shape[0] // d
+    one = np.empty(2)
+    one[0] = floor
+    one[1] = floor_y
+    lo_p, lo_y = one.view(np.int64)[0] * _ULP, one.view(np.int64)[1] * _ULP
+    j = 0
+    for i in range(n_rows):
+        r = rows[i]
+        if i < 2:
+            out[r] = th[j : j + d]
+        else:
+            lo = lo_p if r >= _PZ else _LO
+            bits = out[r].view(np.int64)
+            for m in range(d):
+                bits[m] = np.int64(_unlog(th[j + m], lo))
+        j += d
+    for m in range(d):
+        out[_WZ, m] = out[_MZ, m] * out[_MZ, m] + out[_VZ, m]
+        out[_WX, m] = out[_MX, m] * out[_MX, m] + out[_VX, m]
+    one.view(np.int64)[0] = np.int64(_unlog(th[j], lo_y))
+    return one[0]
+
+
+@njit(inline="always", **_JIT)
+def _coef_m(st, bayes, m):
+    """Eq. (4) for input m: ``<w_z><w_x> / <w_x^2>`` (0, not 0/0, when pruned); ``w_z / w_x``
+    for maximum likelihood."""
+    if bayes:
+        return st[_MZ, m] * st[_MX, m] / st[_WX, m]
+    return st[_MZ, m] / st[_MX, m]
+
+
+@njit(**_JIT)
+def _coef(st, bayes):
+    """Eq. (4) for every input, shape ``(d,)``."""
+    out = np.empty(st.shape[1])
+    for m in range(st.shape[1]):
+        out[m] = _coef_m(st, bayes, m)
+    return out
+
+
+@njit(**_JIT)
+def _coef_change(st, bayes, coef):
+    """Overwrite ``coef`` with eq. (4) of the state (`_coef`); return the norm of the change."""
+    dc = 0.0
+    for m in range(coef.shape[0]):
+        new = _coef_m(st, bayes, m)
+        dc += (new - coef[m]) ** 2
+        coef[m] = new
+    return math.sqrt(dc)
+
+
+@njit(**_JIT)
+def _squarem(th0, th1, th2, step_max, out):
+    """SQUAREM's extrapolation (Varadhan and Roland 2008, scheme S3) from two plain sweeps.
+
+    With ``r = th1 - th0`` and ``v = th2 - 2 th1 + th0`` (packed states, `_pack`),
+    ``alpha = clamp(||r|| / ||v||, 1, step_max)`` and the new point is ``th0 + 2 alpha r +
+    alpha^2 v`` (``alpha = 1`` gives ``th2``), written into ``out``. Returns ``(ok, alpha)``.
+    """
+    sr2 = 0.0
+    sv2 = 0.0
+    for i in range(th0.shape[0]):
+        r = th1[i] - th0[i]
+        v = th2[i] - th1[i] - r
+        sr2 += r * r
+        sv2 += v * v
+    if not (sv2 > 0.0 and math.isfinite(sr2 / sv2)):
+        return False, 1.0
+    alpha = min(max(math.sqrt(sr2 / sv2), 1.0), step_max)
+    if alpha == 1.0:
+        return False, alpha
+    for i in range(th0.shape[0]):
+        r = th1[i] - th0[i]
+        v = th2[i] - th1[i] - r
+        out[i] = th0[i] + (2.0 * alpha) * r + (alpha * alpha) * v
+    return True, alpha
+
+
+@njit(**_JIT)
+def start(xx, xy, yy, n, st, psy, hp, const, es, work):
+    """The first sweep from the initial state (no bound: the variances are still 0) and the
+    E-step after it; updates ``st`` in place. Returns the loop's scalars (``ctl``)."""
+    bayes, a, b0, floor, fixed_x, floor_y = hp
+    dg = np.diag(xx).copy()
+    R, c, S_ee, _ = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, False, es, work)
+    psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y)
+    R, c, S_ee, L = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, True, es, work)
+    ctl = np.zeros(10)
+    ctl[_C_COUNT] = 1.0
+    ctl[_C_L] = L + const
+    ctl[_C_STEP] = 1.0
+    ctl[_C_ESTEP] = 2.0
+    ctl[_C_PSY], ctl[_C_R], ctl[_C_C], ctl[_C_SEE] = psy, R, c, S_ee
+    return ctl
+
+
+@njit(**_JIT)
+def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol, ctol, acc):
+    """EM sweeps, two at a time followed by a SQUAREM jump (if ``acc``), until a tolerance
+    stops them, ``max_iter`` bounds are recorded, or ``limit`` is reached at the end of a cycle
+    (to resume: call again with the same arrays). Updates ``st``, ``es``, ``ctl`` and ``hist``
+    (the bound after each iteration) in place; returns the stop reason's index in `REASONS`,
+    or -1 when paused at ``limit``.
+
+    ``hp = (bayes, a0 + 1, b0, floor, fixed_x, floor_y)``; a trial jump is kept only if the
+    bound does not decrease (NaN fails), so the recorded bounds never decrease.
+    """
+    bayes, a, b0, floor, fixed_x, floor_y = hp
+    dg = np.diag(xx).copy()
+    scale = max(n, 1.0)
+    count = int(ctl[_C_COUNT])
+    L, step_max = ctl[_C_L], ctl[_C_STEP]
+    n_acc, n_estep = int(ctl[_C_ACC]), int(ctl[_C_ESTEP])
+    psy, R, c, S_ee = ctl[_C_PSY], ctl[_C_R], ctl[_C_C], ctl[_C_SEE]
+    coef = _coef(st, bayes)
+    reason = 0
+    es_t, st_t = np.empty_like(es), np.empty_like(st)
+    size = th_size(st.shape[1], bayes, fixed_x) if acc else 0
+    th0, th1, th2, trial = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    fresh = False  # th0 holds the packed current state already
+    while count < limit:
+        if acc and not fresh:
+            _pack(st, psy, bayes, fixed_x, th0)
+        for sweep in range(2):
+            psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y)
+            R, c, S_ee, L_new = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, True, es, work)
+            L_new += const
+            n_estep += 1
+            hist[count] = L_new
+            count += 1
+            dc = _coef_change(st, bayes, coef)
+            dL = abs(L_new - L)
+            L = L_new
+            if dL <= tol * max(abs(L), scale):
+                reason = 1
+            elif dc <= ctol * math.sqrt(float(coef @ coef)):
+                reason = 2
+            if reason != 0 or count >= max_iter:
+                break
+            if acc:
+                _pack(st, psy, bayes, fixed_x, th1 if sweep == 0 else th2)
+        if reason != 0 or count >= max_iter:
+            break
+        if not acc:
+            continue
+        # unless a jump is accepted below, the current state is the second sweep's: th2
+        th0, th2 = th2, th0
+        fresh = True
+        ok, alpha = _squarem(th2, th1, th0, step_max, trial)
+        if not ok:
+            if alpha >= step_max:
+                step_max *= _STEP_GROWTH
+            continue
+        psy_t = _unpack(trial, st, bayes, floor, fixed_x, floor_y, st_t)
+        R_t, c_t, S_t, L_t = _estep(xx, dg, xy, yy, n, st_t, psy_t, bayes, a, b0, True, es_t, work)
+        L_t += const
+        n_estep += 1
+        if L_t >= L:  # accepted only if the bound does not decrease (NaN fails)
+            st[:] = st_t
+            es[:] = es_t
+            psy, R, c, S_ee, L = psy_t, R_t, c_t, S_t, L_t
+            _coef_change(st, bayes, coef)
+            hist[count] = L
+            count += 1
+            n_acc += 1
+            fresh = False
+            if alpha >= step_max:
+                step_max *= _STEP_GROWTH
+        elif alpha >= step_max:
+            step_max = max(1.0, step_max / _STEP_GROWTH)
+    ctl[_C_COUNT], ctl[_C_L], ctl[_C_STEP] = count, L, step_max
+    ctl[_C_ACC], ctl[_C_ESTEP] = n_acc, n_estep
+    ctl[_C_PSY], ctl[_C_R], ctl[_C_C], ctl[_C_SEE] = psy, R, c, S_ee
+    if reason == 0 and count < max_iter:
+        return -1
+    ctl[_C_REASON] = reason
+    return reason
+
+
+def bound_const(n: float, d: int, hp: tuple) -> float:
     """State-independent terms of the bound (the 2 pi's, the Gamma prior, the entropies)."""
     bayes, a, b0 = hp[0], hp[1], hp[2]
     const = -0.5 * n * _LOG_2PI * (1 + 3 * d) + n * d * (1.0 + _LOG_2PI)
     if bayes:
+        from scipy.special import digamma
+
         a0 = a - 1.0
-        dig = float(torch.special.digamma(torch.tensor(a, dtype=torch.float64)))
+        dig = float(digamma(a))
         per = (
             -_LOG_2PI  # the two Gaussian priors
             + a0 * math.log(b0)  # the Gamma prior, with <log alpha> = digamma(a) - log b
@@ -156,52 +461,6 @@ def _bound_const(n: float, d: int, hp: tuple) -> float:
     return const
 
 
-def _pack(st: tuple, hp: tuple) -> np.ndarray:
-    """The free entries of a state as one vector: means as they are, variances in log."""
-    M, V, _, b, P, psy = st
-    pos = [P[0] if hp[4] else P.ravel(), [psy]]
-    if hp[0]:
-        pos = [V.ravel(), b] + pos
-    return np.concatenate((M.ravel(), np.log(np.concatenate(pos))))
-
-
-def _unpack(th: np.ndarray, like: tuple, hp: tuple) -> tuple:
-    """Inverse of `_pack`; the fixed psi_x (if any) is taken from ``like``."""
-    bayes, floor, fixed_x, floor_y = hp[0], hp[3], hp[4], hp[5]
-    d = like[0].shape[1]
-    M = th[: 2 * d].reshape(2, d)
-    pos = np.exp(th[2 * d : -1])
-    if bayes:
-        V, b, pp = pos[: 2 * d].reshape(2, d), pos[2 * d : 3 * d], pos[3 * d :]
-    else:
-        V, b, pp = like[1], like[3], pos
-    if fixed_x:
-        P = np.stack((np.maximum(pp, floor), like[4][1]))
-    else:
-        P = np.maximum(pp.reshape(2, d), floor)
-    psy = max(math.exp(min(float(th[-1]), 700.0)), floor_y)
-    return M, V, M * M + V, b, P, psy
-
-
-def _squarem(th0, th1, th2, step_max: float) -> tuple[np.ndarray | None, float]:
-    """SQUAREM's extrapolation (Varadhan and Roland 2008, scheme S3) from two plain sweeps.
-
-    With ``r = th1 - th0`` and ``v = th2 - 2 th1 + th0`` (packed states, `_pack`),
-    ``alpha = clamp(||r|| / ||v||, 1, step_max)`` and the new point is ``th0 + 2 alpha r +
-    alpha^2 v`` (``alpha = 1`` gives ``th2``). Returns ``(point or None, alpha)``.
-    """
-    r = th1 - th0
-    v = th2 - th1 - r
-    sr2, sv2 = float(r @ r), float(v @ v)
-    if not (sv2 > 0.0 and math.isfinite(sr2 / sv2)):
-        return None, 1.0
-    alpha = min(max(math.sqrt(sr2 / sv2), 1.0), step_max)
-    if alpha == 1.0:
-        return None, alpha
-    return th0 + (2.0 * alpha) * r + (alpha * alpha) * v, alpha
-
-
-def _coef(st: tuple, bayes: bool) -> np.ndarray:
-    """Eq. (4), the noiseless-input slope ``<w_z><w_x> / <w_x^2>`` (0, not 0/0, when pruned)."""
-    M = st[0]
-    return M[0] * M[1] / st[2][1] if bayes else M[0] / M[1]
+def coef(st: np.ndarray, bayes: bool) -> np.ndarray:
+    """Eq. (4) of a state (`_coef`), callable from Python."""
+    return _coef(st, bayes)

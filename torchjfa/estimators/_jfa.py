@@ -28,20 +28,21 @@ import torch
 from .._progress import progress_bar
 from .._validation import as_tensor, check_finite, check_X
 from ..stats import Moments, as_folds
+from . import _bayes_jfa as _em
 from ._base import LinearEstimator
-from ._bayes_jfa import (
-    _STEP_GROWTH,
-    _bound_const,
-    _coef,
-    _estep,
-    _pack,
-    _squarem,
-    _Stats,
-    _unpack,
-    _update,
-)
 
 __all__ = ["JFA", "BayesianJFA"]
+
+_BAR_BLOCK = 2000  # iterations per call of the compiled loop when a progress bar is shown
+
+
+class _Stats:
+    """Standardised moments of the active columns (unit variance, centred if asked), float64."""
+
+    __slots__ = ("n", "xx", "xy", "yy")
+
+    def __init__(self, n: float, xx: np.ndarray, xy: np.ndarray, yy: float) -> None:
+        self.n, self.xx, self.xy, self.yy = float(n), xx, xy, float(yy)
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -161,98 +162,70 @@ class _JFABase(LinearEstimator):
     def _hyper(self, fixed_x: bool) -> tuple:
         return (False, 0.0, 0.0, float(self.noise_floor), fixed_x, float(self.noise_y_floor))
 
-    def _init(self, S: _Stats, psx_fixed: np.ndarray | None) -> tuple:
-        """The note's initialisation, in standardised units (every variance is 1)."""
+    def _init(self, S: _Stats, psx_fixed: np.ndarray | None) -> tuple[np.ndarray, float]:
+        """The note's initialisation, in standardised units (every variance is 1).
+
+        Returns the state array (rows as in ``_bayes_jfa``) and psi_y.
+        """
         floor = self.noise_floor
-        d = S.dg.shape[0]
+        d = S.xy.shape[0]
+        st = np.zeros((9, d))
         psx = np.full(d, 0.5) if psx_fixed is None else np.maximum(psx_fixed, floor)
         mx = np.sqrt(np.maximum(1.0 - psx, 0.01))
         mz = (S.xy / S.n) / mx  # cov(x_m, y) / <w_xm>
         # the variance of y left over, split equally between psi_y and sum psi_z; when the
         # w_z above already explain more than var(y) (correlated inputs), keep 1% of it
         left = max(1.0 - float(mz @ mz), 0.01)
-        psz = np.full(d, max(0.5 * left / d, floor))
-        M = np.stack((mz, mx))
-        W2 = M * M
-        b = 0.5 * W2.sum(0) + self._hyper(False)[2]  # Q(alpha) once before the first sweep
+        st[_em._MZ], st[_em._MX] = mz, mx
+        st[_em._WZ], st[_em._WX] = mz * mz, mx * mx
+        # Q(alpha) once before the first sweep
+        st[_em._B] = 0.5 * (st[_em._WZ] + st[_em._WX]) + self._hyper(False)[2]
+        st[_em._PZ], st[_em._PX] = max(0.5 * left / d, floor), psx
         psy = max(0.5 * left, float(self.noise_y_floor))
-        return M, np.zeros_like(M), W2, b, np.stack((psz, psx)), psy
+        return st, psy
 
     def _run(self, S: _Stats, psx_fixed: np.ndarray | None):
-        """The EM loop, with optional SQUAREM steps. Returns (state, bounds, info)."""
+        """The EM loop (compiled, ``_bayes_jfa.run``). Returns (state, bounds, info)."""
         hp = self._hyper(psx_fixed is not None)
-        bayes = hp[0]
-        const = _bound_const(S.n, S.dg.shape[0], hp)
-        tol, ctol, max_iter = float(self.tol), float(self.coef_tol), int(self.max_iter)
-        scale = max(S.n, 1.0)
-        with np.errstate(all="ignore"):  # a rejected SQUAREM trial may overflow; NaN fails it
-            st = self._init(S, psx_fixed)
-            # first sweep (no bound: the variances are still 0)
-            st = _update(S, _estep(S, st, hp, const, bound=False)[0], st, hp)
-            es, L = _estep(S, st, hp, const)
-            coef = _coef(st, bayes)
-            hist = [L]
-            reason, n_acc, n_estep, step_max = "max_iter", 0, 2, 1.0
-            bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
-            with bar:
-                while len(hist) < max_iter:
-                    # two plain sweeps from st (st0 -> st1 -> st2), then a SQUAREM jump
-                    th0 = _pack(st, hp) if self.accelerate else None
-                    ths = []
-                    for _ in range(2):
-                        st = _update(S, es, st, hp)
-                        es, L_new = _estep(S, st, hp, const)
-                        n_estep += 1
-                        hist.append(L_new)
-                        new_coef = _coef(st, bayes)
-                        dc = float(np.linalg.norm(new_coef - coef))
-                        dL, L, coef = abs(L_new - L), L_new, new_coef
-                        if dL <= tol * max(abs(L), scale):
-                            reason = "bound"
-                        elif dc <= ctol * float(np.linalg.norm(coef)):
-                            reason = "coef"
-                        if reason != "max_iter" or len(hist) >= max_iter:
-                            break
-                        if self.accelerate:
-                            ths.append(_pack(st, hp))
-                    if reason != "max_iter" or len(hist) >= max_iter:
-                        break
-                    if not self.accelerate:
-                        continue
-                    trial, alpha = _squarem(th0, ths[0], ths[1], step_max)
-                    if trial is None:
-                        if alpha >= step_max:
-                            step_max *= _STEP_GROWTH
-                        continue
-                    trial = _unpack(trial, st, hp)
-                    es_t, L_t = _estep(S, trial, hp, const)
-                    n_estep += 1
-                    if L_t >= L:  # accepted only if the bound does not decrease (NaN fails)
-                        st, es, L = trial, es_t, L_t
-                        coef = _coef(st, bayes)
-                        hist.append(L)
-                        n_acc += 1
-                        if alpha >= step_max:
-                            step_max *= _STEP_GROWTH
-                    elif alpha >= step_max:
-                        step_max = max(1.0, step_max / _STEP_GROWTH)
-                    if self.verbose and len(hist) % 100 < 3:
-                        bar.n = len(hist)
-                        bar.set_postfix(bound=f"{L:.8g}", step=f"{step_max:.3g}")
-        info = {"reason": reason, "accepted": n_acc, "n_estep": n_estep, "k": es[0]}
-        return st, torch.tensor(hist, dtype=torch.float64), info
+        d, max_iter = S.xy.shape[0], int(self.max_iter)
+        const = _em.bound_const(S.n, d, hp)
+        st, psy = self._init(S, psx_fixed)
+        es, work, hist = np.empty((5, d)), np.empty((7, d)), np.empty(max_iter)
+        ctl = _em.start(S.xx, S.xy, S.yy, S.n, st, psy, hp, const, es, work)
+        hist[0] = ctl[_em._C_L]
+        # without a bar, one call runs to the end; with one, calls of ~0.1 s update it
+        block = _BAR_BLOCK if self.verbose else max_iter
+        bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
+        with bar, np.errstate(all="ignore"):  # a rejected SQUAREM trial may overflow
+            args = (S.xx, S.xy, S.yy, S.n, st, hp, const, es, work, ctl, hist)
+            tols = (max_iter, float(self.tol), float(self.coef_tol), bool(self.accelerate))
+            while True:
+                done = int(ctl[_em._C_COUNT])
+                code = _em.run(*args, min(done + block, max_iter), *tols)
+                bar.update(int(ctl[_em._C_COUNT]) - done)
+                bar.set_postfix(bound=f"{ctl[_em._C_L]:.8g}", step=f"{ctl[_em._C_STEP]:.3g}")
+                if code >= 0:
+                    break
+        n = int(ctl[_em._C_COUNT])
+        info = {
+            "reason": _em.REASONS[code],
+            "accepted": int(ctl[_em._C_ACC]),
+            "n_estep": int(ctl[_em._C_ESTEP]),
+            "k": es[_em._K].copy(),
+            "psy": float(ctl[_em._C_PSY]),
+        }
+        return st, torch.tensor(hist[:n], dtype=torch.float64), info
 
     def _store(self, st, hist, info, active, sx, sy, m: Moments, total: Moments) -> None:
         """Map the standardised solution back to the caller's units, zeros for constant columns."""
         d = total.n_features
         kw = {"dtype": torch.float64, "device": total.xtx.device}
         bayes = self._bayes
-        M, _, _, b, P, psy = st
-        mz, mx, psz, psx, b, k = (
-            torch.as_tensor(v, **kw) for v in (M[0], M[1], P[0], P[1], b, info["k"])
-        )
-        coef = torch.as_tensor(_coef(st, bayes), **kw)
-        psy = torch.tensor(psy, **kw)
+        rows = (_em._MZ, _em._MX, _em._PZ, _em._PX, _em._B)
+        mz, mx, psz, psx, b = (torch.as_tensor(st[r].copy(), **kw) for r in rows)
+        k = torch.as_tensor(info["k"], **kw)
+        coef = torch.as_tensor(_em.coef(st, bayes), **kw)
+        psy = torch.tensor(info["psy"], **kw)
         hist = hist.to(total.xtx.device)
 
         def full(v, fill=0.0):
@@ -270,8 +243,8 @@ class _JFABase(LinearEstimator):
         if bayes:
             self.relevance_ = full((self._hyper(False)[1]) / b, math.inf)
             # first-order spread of w_z / w_x under the factorised posterior Q(w_z) Q(w_x)
-            V = torch.as_tensor(st[1], **kw)
-            var = (V[0] + (mz / mx) ** 2 * V[1]) / (mx * mx)
+            vz, vx = (torch.as_tensor(st[r].copy(), **kw) for r in (_em._VZ, _em._VX))
+            var = (vz + (mz / mx) ** 2 * vx) / (mx * mx)
             self.coef_std_ = full(torch.sqrt(var) * sy / sx)
         self.n_features_in_ = d
         self.active_ = active
