@@ -38,6 +38,21 @@ def test_chunks_and_addition_equal_one_pass(dtype):
         assert m.n_rows == 200
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_rows_over_several_blocks_weighted(dtype):
+    # update() works through a chunk in blocks of rows; 5,000 rows span three, the last partial
+    X, y = _data(n=5000, d=4, seed=3, dtype=dtype)
+    w = torch.rand(5000, generator=torch.Generator().manual_seed(4), dtype=dtype)
+    m = Moments.from_data(X, y, weights=w)
+    X, y, w = X.double(), y.double(), w.double()
+    torch.testing.assert_close(m.xtx, (X * w[:, None]).T @ X, rtol=1e-12, atol=0)
+    torch.testing.assert_close(m.xty, X.T @ (w * y), rtol=1e-12, atol=0)
+    torch.testing.assert_close(m.sum_x, w @ X, rtol=1e-12, atol=0)
+    torch.testing.assert_close(m.yty, w @ (y * y), rtol=1e-12, atol=0)
+    torch.testing.assert_close(m.n, w.sum(), rtol=1e-12, atol=0)
+    assert m.n_rows == 5000
+
+
 def test_weights_equal_repeated_rows():
     X, y = _data(n=30)
     w = torch.randint(0, 4, (30,)).to(torch.float64)

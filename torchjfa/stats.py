@@ -19,6 +19,7 @@ from ._validation import as_tensor, check_finite, check_Xy
 __all__ = ["Moments", "kfold_moments"]
 
 _FIELDS = ("n", "sum_x", "sum_y", "xtx", "xty", "yty")
+_BLOCK_ROWS = 2048  # rows per block of `Moments.update` (1.2 MB at d = 77: stays in cache)
 
 
 class Moments:
@@ -119,14 +120,23 @@ class Moments:
         X, y, weights = check_Xy(X, y, weights, finite=False)
         if X.shape[1] != self.n_features:
             raise ValueError(f"X has {X.shape[1]} features, these moments have {self.n_features}")
-        X = X.to(device=self.xtx.device, dtype=torch.float64)
-        y = y.to(device=self.xtx.device, dtype=torch.float64)
-        # y and a column of ones (or the weights) side by side: X^T [y, 1] is one pass over X
-        ones = torch.ones_like(y) if weights is None else weights.to(X)
+        kw = {"device": self.xtx.device, "dtype": torch.float64}
+        y = y.to(**kw)
+        # y and a column of ones (or the weights) side by side: X^T [y, 1] in one product
+        ones = torch.ones_like(y) if weights is None else weights.to(**kw)
         yw = y * ones if weights is not None else y
-        Xw = X if weights is None else X * ones[:, None]
-        xtx = Xw.T @ X
-        xt_y1 = X.T @ torch.stack([yw, ones], 1)  # (d, 2)
+        y1 = torch.stack([yw, ones], 1)  # (n, 2)
+        d = X.shape[1]
+        xtx = torch.zeros(d, d, **kw)
+        xt_y1 = torch.zeros(d, 2, **kw)
+        # in blocks of rows that stay in cache between the two products (and the float64 copy
+        # and the weighting of a block); measured on 500,000 x 77: 1.26x the bare X^T X pass
+        # instead of 1.52x on one thread, 1.35x either way on two
+        for a in range(0, X.shape[0], _BLOCK_ROWS):
+            Xb = X[a : a + _BLOCK_ROWS].to(**kw)
+            Xwb = Xb if weights is None else Xb * ones[a : a + _BLOCK_ROWS, None]
+            xtx.addmm_(Xwb.T, Xb)
+            xt_y1.addmm_(Xb.T, y1[a : a + _BLOCK_ROWS])
         yty, sum_y = yw @ y, yw.sum()
         if not (
             bool(torch.isfinite(torch.diagonal(xtx)).all())
