@@ -30,7 +30,7 @@ def format_table(summary: list[dict]) -> str:
     for (r, u, snr), cells in blocks.items():
         lines.append(f"\nr={r}, u={u}, input SNR {snr:g}")
         lines.append(
-            f"  {'method':32s} {'clean nMSE':>18s} {'noisy nMSE':>18s} {'fit s':>8s} {'iters':>7s}"
+            f"  {'method':36s} {'clean nMSE':>18s} {'noisy nMSE':>18s} {'fit s':>8s} {'iters':>7s}"
         )
         methods = list(dict.fromkeys(c["method"] for c in cells))
         for m in methods:
@@ -38,7 +38,7 @@ def format_table(summary: list[dict]) -> str:
             clean, noisy = by_test["clean"], by_test["noisy"]
             iters = f"{clean['n_iter_mean']:7.0f}" if clean["n_iter_mean"] >= 0 else "      -"
             lines.append(
-                f"  {m:32s} {clean['nmse_mean']:9.4f} ± {clean['nmse_std']:6.4f}"
+                f"  {m:36s} {clean['nmse_mean']:9.4f} ± {clean['nmse_std']:6.4f}"
                 f" {noisy['nmse_mean']:9.4f} ± {noisy['nmse_std']:6.4f}"
                 f" {clean['fit_s_mean']:8.3f} {iters}"
             )

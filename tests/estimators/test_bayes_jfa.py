@@ -43,19 +43,21 @@ def _hard_data(kind, seed=0):
 
 
 # ---------------------------------------------------------------- the per-sample reference
-def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3):
+def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3, ard="shared", lam=1e-8):
     """Variational EM with an explicit 2d x 2d posterior of (z_i, t_i) per sample.
 
     Standardises like the library (centre, unit variance), starts from the note's
     initialisation, and returns per iteration the bound on log p(X, y) in the caller's units,
-    plus the final parameters in the caller's units.
+    plus the final parameters in the caller's units. ``ard="output"``: alpha_m is the prior
+    precision of w_zm alone, and w_xm ~ N(0, 1 / lam).
     """
+    shared = ard == "shared"
     N, d = X.shape
     mx_, my_ = X.mean(0), y.mean()
     sx = ((X - mx_) ** 2).mean(0).sqrt()
     sy = ((y - my_) ** 2).mean().sqrt()
     Xs, ys = (X - mx_) / sx, (y - my_) / sy
-    a = a0 + 1.0
+    a = a0 + (1.0 if shared else 0.5)  # the shape of Q(alpha): a0 + (loadings under it) / 2
     # initialisation (note): w_x = sqrt(.5 var), psi_x = .5 var, w_z = cov / w_x
     wx = torch.full((d,), math.sqrt(0.5), dtype=F64)
     psx = torch.full((d,), 0.5, dtype=F64)
@@ -66,7 +68,7 @@ def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3):
     psz = torch.full((d,), left / (2 * d), dtype=F64)
     vz = torch.zeros(d, dtype=F64)
     vx = torch.zeros(d, dtype=F64)
-    bq = b0 + 0.5 * (wz**2 + wx**2)  # Q(alpha) once before anything else
+    bq = b0 + 0.5 * (wz**2 + (wx**2 if shared else 0.0))  # Q(alpha) once before anything else
 
     def posterior():
         """Per sample: invert the (z_i, t_i) precision; return means (N, 2d) and covs."""
@@ -106,8 +108,10 @@ def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3):
         L += (-0.5 * N * LOG2PI - 0.5 * tt).sum()  # E log p(t)
         ea = a / bq
         elog = torch.special.digamma(torch.tensor(a, dtype=F64)) - torch.log(bq)
-        for w2 in (wz**2 + vz, wx**2 + vx):  # E log N(w; 0, 1/alpha)
+        for w2 in (wz**2 + vz, wx**2 + vx) if shared else (wz**2 + vz,):  # E log N(w; 0, 1/alpha)
             L += (0.5 * (elog - LOG2PI - ea * w2)).sum()
+        if not shared:  # E log N(w_x; 0, 1 / lam)
+            L += (0.5 * (math.log(lam) - LOG2PI - lam * (wx**2 + vx))).sum()
         L += (a0 * math.log(b0) - math.lgamma(a0) + (a0 - 1) * elog - b0 * ea).sum()
         L += (0.5 * torch.log(2 * math.pi * math.e * vz)).sum()
         L += (0.5 * torch.log(2 * math.pi * math.e * vx)).sum()
@@ -126,9 +130,9 @@ def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3):
         ea = a / bq
         vz = 1 / (tt / psz + ea)
         wz = vz * zt / psz
-        vx = 1 / (tt / psx + ea)
+        vx = 1 / (tt / psx + (ea if shared else lam))
         wx = vx * xt / psx
-        bq = b0 + 0.5 * (wz**2 + vz + wx**2 + vx)
+        bq = b0 + 0.5 * (wz**2 + vz + (wx**2 + vx if shared else 0.0))
         one = torch.ones(d, dtype=F64)
         e_y = ((ys - mu[:, :d] @ one) ** 2).sum() + N * (one @ cov[0, :d, :d] @ one)
         psz = ((zz - 2 * wz * zt + (wz**2 + vz) * tt) / N).clamp_min(floor)
@@ -152,12 +156,14 @@ def _reference(X, y, n_iter, a0=1e-8, b0=1e-8, floor=1e-6, floor_y=1e-3):
     }
 
 
-def test_matches_per_sample_reference():
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_matches_per_sample_reference(ard):
     X, y, _ = _model_data(40, 4, seed=3, psx=0.3)
     y = y + 6.0 * torch.randn(40, generator=torch.Generator().manual_seed(4), dtype=F64)
     n_iter = 4
-    est = BayesianJFA(max_iter=n_iter, tol=0.0, coef_tol=0.0, accelerate=False).fit(X, y)
-    ref = _reference(X, y, n_iter)
+    kw = dict(max_iter=n_iter, tol=0.0, coef_tol=0.0, accelerate=False, ard=ard)
+    est = BayesianJFA(**kw).fit(X, y)
+    ref = _reference(X, y, n_iter, ard=ard)
     assert est.n_iter_ == n_iter and est.stop_reason_ == "max_iter" and not est.converged_
     torch.testing.assert_close(est.lower_bound_, ref["lower_bound"], rtol=1e-10, atol=0)
     for key in ("coef", "coef_noisy", "noise_x", "noise_z", "noise_y", "relevance"):
@@ -165,17 +171,24 @@ def test_matches_per_sample_reference():
         torch.testing.assert_close(got, ref[key], rtol=1e-10, atol=1e-12, msg=key)
 
 
-@pytest.mark.parametrize("kind", ["plain", "ill", "redundant", "model", "known_noise"])
+@pytest.mark.parametrize(
+    "kind", ["plain", "ill", "redundant", "model", "known_noise", "known_noise_output_ard"]
+)
 @pytest.mark.parametrize("accelerate", [False, True])
 def test_bound_never_decreases(kind, accelerate):
     noise = None
-    if kind in ("model", "known_noise"):
+    if kind.startswith(("model", "known_noise")):
         X, y, _ = _model_data(400, 6, seed=1, n_irrelevant=2)
-        noise = torch.full((6,), 0.5, dtype=F64) if kind == "known_noise" else None
+        noise = torch.full((6,), 0.5, dtype=F64) if kind.startswith("known_noise") else None
     else:
         X, y = _hard_data(kind)
     est = BayesianJFA(
-        max_iter=1500, tol=0.0, coef_tol=0.0, accelerate=accelerate, input_noise=noise
+        max_iter=1500,
+        tol=0.0,
+        coef_tol=0.0,
+        accelerate=accelerate,
+        input_noise=noise,
+        ard="output" if kind.endswith("output_ard") else "shared",
     ).fit(X, y)
     L = est.lower_bound_
     assert L.dtype == F64 and L.shape == (est.n_iter_,) and bool(torch.isfinite(L).all())
@@ -192,6 +205,27 @@ def test_irrelevant_inputs_are_pruned():
     assert float(est.coef_[5:].abs().max()) < 1e-3 * float(est.coef_[:5].abs().min())
     assert float(est.coef_noisy_[5:].abs().max()) < 1e-3 * float(est.coef_noisy_[:5].abs().min())
     assert bool((est.coef_[:5] > 0.5 * b[:5]).all())
+
+
+def test_output_ard_prunes_what_shared_ard_cannot_with_known_noise():
+    # with psi_x known, w_x of an irrelevant input is pinned to sqrt(var(x) - psi_x), so an
+    # alpha shared with w_x stays O(1) and does not prune it; an alpha on w_z alone does
+    X, y, b = _model_data(1000, 8, seed=2, n_irrelevant=3)
+    noise = torch.full((8,), 0.5, dtype=F64)
+    fits = {
+        ard: BayesianJFA(input_noise=noise, ard=ard, max_iter=100_000).fit(X, y)
+        for ard in ("shared", "output")
+    }
+    shared, output = fits["shared"], fits["output"]
+    assert shared.converged_ and output.converged_
+    assert float(shared.relevance_[5:].max()) < 10 * float(shared.relevance_[:5].min())
+    assert float(shared.coef_[5:].abs().max()) > 0.01
+    assert float(output.relevance_[5:].min()) > 1e5 * float(output.relevance_[:5].max())
+    assert float(output.coef_[5:].abs().max()) < 1e-3 * float(output.coef_[:5].abs().min())
+    err = {k: float(torch.linalg.vector_norm(e.coef_ - b)) for k, e in fits.items()}
+    assert err["output"] < err["shared"]
+    with pytest.raises(ValueError, match="ard must be"):
+        BayesianJFA(ard="both").fit(X, y)
 
 
 def test_known_input_noise_recovers_true_coefficients():

@@ -61,7 +61,7 @@ def _log_end(acc):
 
 
 @njit(**_JIT)
-def _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, bound, es, work):
+def _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, bound, es, work):
     """The note's E-step, Q(z, t) and its expected statistics, and the lower bound there.
 
     Writes ``es`` (see the module docstring); ``work`` is a ``(7, d)`` scratch array and
@@ -131,7 +131,10 @@ def _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, bound, es, work):
         qx = st[_WX, m] * stt - 2.0 * st[_MX, m] * sxt + g
         pm = qz / st[_PZ, m] + qx / st[_PX, m] + stt
         if bayes:
-            pm += 2.0 * a * (0.5 * (st[_WZ, m] + st[_WX, m]) + b0) / st[_B, m]
+            if lam < 0.0:  # one alpha_m shared by w_zm and w_xm
+                pm += 2.0 * a * (0.5 * (st[_WZ, m] + st[_WX, m]) + b0) / st[_B, m]
+            else:  # alpha_m for w_zm only; w_xm ~ N(0, 1 / lam)
+                pm += 2.0 * a * (0.5 * st[_WZ, m] + b0) / st[_B, m] + lam * st[_WX, m]
         per[m] = pm
     if not bound:
         return R, c, S_ee, math.nan
@@ -153,7 +156,7 @@ def _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, bound, es, work):
 
 
 @njit(**_JIT)
-def _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y):
+def _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, lam, floor, fixed_x, floor_y):
     """Q(w_z), Q(w_x), Q(alpha) (or the maximum-likelihood W), then the M-step for the psi's.
 
     Updates ``st`` in place from the E-step's ``es``; returns the new ``psi_y``.
@@ -168,7 +171,7 @@ def _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_
         if bayes:
             ea = a / st[_B, m]
             vz = 1.0 / (stt * i0 + ea)
-            vx = 1.0 / (stt * i1 + ea)
+            vx = 1.0 / (stt * i1 + (ea if lam < 0.0 else lam))
             mz = vz * szt * i0
             mx = vx * sxt * i1
         else:
@@ -185,7 +188,7 @@ def _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_
         st[_WZ, m] = wz
         st[_WX, m] = wx
         if bayes:
-            st[_B, m] = 0.5 * (wz + wx) + b0
+            st[_B, m] = 0.5 * (wz + wx if lam < 0.0 else wz) + b0
         st[_PZ, m] = max((wz * stt - 2.0 * mz * szt + es[_SZZ, m]) / n, floor)
         if not fixed_x:
             st[_PX, m] = max((wx * stt - 2.0 * mx * sxt + dg[m]) / n, floor)
@@ -340,11 +343,11 @@ def _squarem(th0, th1, th2, step_max, out):
 def start(xx, xy, yy, n, st, psy, hp, const, es, work):
     """The first sweep from the initial state (no bound: the variances are still 0) and the
     E-step after it; updates ``st`` in place. Returns the loop's scalars (``ctl``)."""
-    bayes, a, b0, floor, fixed_x, floor_y = hp
+    bayes, a, b0, floor, fixed_x, floor_y, lam = hp
     dg = np.diag(xx).copy()
-    R, c, S_ee, _ = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, False, es, work)
-    psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y)
-    R, c, S_ee, L = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, True, es, work)
+    R, c, S_ee, _ = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, False, es, work)
+    psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, lam, floor, fixed_x, floor_y)
+    R, c, S_ee, L = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, True, es, work)
     ctl = np.zeros(10)
     ctl[_C_COUNT] = 1.0
     ctl[_C_L] = L + const
@@ -365,7 +368,7 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
     ``hp = (bayes, a0 + 1, b0, floor, fixed_x, floor_y)``; a trial jump is kept only if the
     bound does not decrease (NaN fails), so the recorded bounds never decrease.
     """
-    bayes, a, b0, floor, fixed_x, floor_y = hp
+    bayes, a, b0, floor, fixed_x, floor_y, lam = hp
     dg = np.diag(xx).copy()
     scale = max(n, 1.0)
     count = int(ctl[_C_COUNT])
@@ -382,8 +385,12 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
         if acc and not fresh:
             _pack(st, psy, bayes, fixed_x, th0)
         for sweep in range(2):
-            psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, floor, fixed_x, floor_y)
-            R, c, S_ee, L_new = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, True, es, work)
+            psy = _update(
+                dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, lam, floor, fixed_x, floor_y
+            )
+            R, c, S_ee, L_new = _estep(
+                xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, True, es, work
+            )
             L_new += const
             n_estep += 1
             hist[count] = L_new
@@ -412,7 +419,9 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
                 step_max *= _STEP_GROWTH
             continue
         psy_t = _unpack(trial, st, bayes, floor, fixed_x, floor_y, st_t)
-        R_t, c_t, S_t, L_t = _estep(xx, dg, xy, yy, n, st_t, psy_t, bayes, a, b0, True, es_t, work)
+        R_t, c_t, S_t, L_t = _estep(
+            xx, dg, xy, yy, n, st_t, psy_t, bayes, a, b0, lam, True, es_t, work
+        )
         L_t += const
         n_estep += 1
         if L_t >= L:  # accepted only if the bound does not decrease (NaN fails)
@@ -439,24 +448,28 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
 
 def bound_const(n: float, d: int, hp: tuple) -> float:
     """State-independent terms of the bound (the 2 pi's, the Gamma prior, the entropies)."""
-    bayes, a, b0 = hp[0], hp[1], hp[2]
+    bayes, a, b0, lam = hp[0], hp[1], hp[2], hp[6]
     const = -0.5 * n * _LOG_2PI * (1 + 3 * d) + n * d * (1.0 + _LOG_2PI)
     if bayes:
         from scipy.special import digamma
 
-        a0 = a - 1.0
         dig = float(digamma(a))
+        # Q(alpha) = Gamma(a, b): a = a0 + 1 with alpha shared by the two loadings, a0 + 1/2
+        # with alpha on w_z alone; <log alpha> = digamma(a) - log b
+        k = 1.0 if lam < 0.0 else 0.5  # loadings under alpha
+        a0 = a - k
         per = (
-            -_LOG_2PI  # the two Gaussian priors
-            + a0 * math.log(b0)  # the Gamma prior, with <log alpha> = digamma(a) - log b
+            -k * _LOG_2PI  # the Gaussian priors under alpha
+            + a0 * math.log(b0)  # the Gamma prior
             - math.lgamma(a0)
-            + a0 * dig
-            + 1.0  # entropies of Q(w_z), Q(w_x): two halves of log(2 pi e)
-            + _LOG_2PI
+            + (a0 - 1.0 + k) * dig
+            + k * (1.0 + _LOG_2PI)  # entropies of their Q(w): halves of log(2 pi e)
             + a  # entropy of Q(alpha)
             + math.lgamma(a)
             + (1.0 - a) * dig
         )
+        if lam >= 0.0:  # w_x ~ N(0, 1 / lam): the prior's normaliser and Q(w_x)'s entropy
+            per += 0.5 * math.log(lam) + 0.5
         const += d * per
     return const
 
