@@ -83,6 +83,17 @@ def test_identify_end_to_end_smoke(head_csv, tmp_path, capsys):
     )
 
 
+def test_output_ard_reaches_the_estimator(head_csv, tmp_path, capsys):
+    out = tmp_path / "ard"
+    code, _, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--ard", "output",
+        "--input-noise", "periods", "--no-project",
+    )  # fmt: skip
+    assert code == 0, err
+    settings = json.loads((out / "report.json").read_text())["settings"]
+    assert "ard='output'" in settings["estimator"] and settings["input_noise"] == "periods"
+
+
 def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys):
     vpath = tmp_path / "valid.parquet"
     assert (

@@ -103,7 +103,7 @@ def _estimator(name: str, args):
 
     kw = {"fit_intercept": False}
     if name == "bayes-jfa":
-        return E.BayesianJFA(max_iter=args.max_iter, **kw)
+        return E.BayesianJFA(max_iter=args.max_iter, ard=args.ard, **kw)
     if name == "jfa":
         return E.JFA(max_iter=args.max_iter, **kw)
     return {
@@ -244,6 +244,7 @@ def cmd_identify(args) -> int:
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,
         "input_noise": mode,
+        "estimator": repr(result.estimator),
         "weighting": args.weighting,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
     }
@@ -468,6 +469,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--parametrization", choices=("virtual", "log-cholesky"), default="virtual")
     p.add_argument("--no-project", action="store_true", help="skip the physical projection")
     p.add_argument("--max-iter", type=int, default=20_000, help="EM iterations (JFA, Bayesian JFA)")
+    p.add_argument(
+        "--ard",
+        choices=("shared", "output"),
+        default="shared",
+        help="Bayesian JFA's relevance prior: on both loadings (the paper) or on the output "
+        "loading alone (better with --input-noise; see BayesianJFA)",
+    )
     p.add_argument(
         "--compiled",
         action="store_true",
