@@ -17,8 +17,8 @@ disk by Numba (``cache=True``), without fast-math: the arithmetic is IEEE float6
 
 The state is one ``(9, d)`` array plus ``psi_y``; its rows are `_MZ`, `_MX` (the posterior
 means ``<w_z>``, ``<w_x>``), `_VZ`, `_VX` (their variances; 0 for maximum likelihood), `_WZ`,
-`_WX` (second moments ``<w^2>``), `_B` (the rate of Q(alpha), ``<alpha> = (a0 + 1) / b``;
-unused for maximum likelihood), `_PZ`, `_PX` (psi_z, psi_x). The E-step writes its expected
+`_WX` (second moments ``<w^2>``), `_B` (the rate of Q(alpha), ``<alpha> = a / b`` with
+``a = a0 + 1``, or ``a0 + 1/2`` when alpha governs ``w_z`` alone; unused for maximum likelihood), `_PZ`, `_PX` (psi_z, psi_x). The E-step writes its expected
 statistics into one ``(5, d)`` array with rows `_K` (the noisy-input predictor ``k``), `_SZZ`,
 `_STT`, `_SZT`, `_SXT` and returns the scalars ``R = sum 1/D``, ``c = psi_y + R`` and the
 residual sum of squares ``S_ee``.
@@ -36,7 +36,7 @@ _STEP_GROWTH = 4.0  # SQUAREM: growth of the largest step after a step at the ca
 _MZ, _MX, _VZ, _VX, _WZ, _WX, _B, _PZ, _PX = range(9)
 _K, _SZZ, _STT, _SZT, _SXT = range(5)
 # the loop's scalars, kept in one float array so that a fit can run in blocks (progress bar)
-_C_COUNT, _C_L, _C_STEP, _C_ACC, _C_ESTEP, _C_PSY, _C_R, _C_C, _C_SEE, _C_REASON = range(10)
+_C_COUNT, _C_L, _C_STEP, _C_ACC, _C_ESTEP, _C_PSY, _C_R, _C_C, _C_SEE = range(9)
 REASONS = ("max_iter", "bound", "coef")
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
@@ -217,6 +217,31 @@ _LO = float(np.float64(1e-300).view(np.int64)) * _ULP  # the range the packed va
 _HI = float(np.float64(1e300).view(np.int64)) * _ULP
 
 
+@njit(inline="always", **_JIT)
+def _bitlog(x):
+    """`_pack`'s log of one positive float: its bit pattern as an integer, times 2^-52."""
+    one = np.empty(1)
+    one[0] = x
+    return one.view(np.int64)[0] * _ULP
+
+
+@njit(inline="always", **_JIT)
+def _unlog_bits(t, lo):
+    """Inverse of `_bitlog` as the bit pattern, held to [lo, 1e300] in packed units (NaN gives
+    lo); write it through an int64 view of the float64 destination."""
+    if not t >= lo:
+        t = lo
+    return np.int64(min(t, _HI) / _ULP)
+
+
+@njit(inline="always", **_JIT)
+def _unlog(t, lo):
+    """Inverse of `_bitlog` for one float (see `_unlog_bits`)."""
+    one = np.empty(1, dtype=np.int64)
+    one[0] = _unlog_bits(t, lo)
+    return one.view(np.float64)[0]
+
+
 @njit(**_JIT)
 def _pack(st, psy, bayes, fixed_x, th):
     """Write the free entries of a state into ``th``: means as they are, variances in log.
@@ -240,17 +265,7 @@ def _pack(st, psy, bayes, fixed_x, th):
             for m in range(d):
                 th[j + m] = bits[m] * _ULP
         j += d
-    one = np.empty(1)
-    one[0] = psy
-    th[j] = one.view(np.int64)[0] * _ULP
-
-
-@njit(inline="always", **_JIT)
-def _unlog(t, lo):
-    """Inverse of `_pack`'s log, held to [lo, 1e300] (NaN gives lo)."""
-    if not t >= lo:
-        t = lo
-    return min(t, _HI) / _ULP
+    th[j] = _bitlog(psy)
 
 
 @njit(**_JIT)
@@ -261,10 +276,7 @@ def _unpack(th, like, bayes, floor, fixed_x, floor_y, out):
     out[:] = like
     rows = _packed_rows(bayes, fixed_x)
     n_rows = th.shape[0] // d
-    one = np.empty(2)
-    one[0] = floor
-    one[1] = floor_y
-    lo_p, lo_y = one.view(np.int64)[0] * _ULP, one.view(np.int64)[1] * _ULP
+    lo_p, lo_y = _bitlog(floor), _bitlog(floor_y)
     j = 0
     for i in range(n_rows):
         r = rows[i]
@@ -274,13 +286,12 @@ def _unpack(th, like, bayes, floor, fixed_x, floor_y, out):
             lo = lo_p if r >= _PZ else _LO
             bits = out[r].view(np.int64)
             for m in range(d):
-                bits[m] = np.int64(_unlog(th[j + m], lo))
+                bits[m] = _unlog_bits(th[j + m], lo)
         j += d
     for m in range(d):
         out[_WZ, m] = out[_MZ, m] * out[_MZ, m] + out[_VZ, m]
         out[_WX, m] = out[_MX, m] * out[_MX, m] + out[_VX, m]
-    one.view(np.int64)[0] = np.int64(_unlog(th[j], lo_y))
-    return one[0]
+    return _unlog(th[j], lo_y)
 
 
 @njit(inline="always", **_JIT)
@@ -340,15 +351,14 @@ def _squarem(th0, th1, th2, step_max, out):
 
 
 @njit(**_JIT)
-def start(xx, xy, yy, n, st, psy, hp, const, es, work):
+def start(xx, dg, xy, yy, n, st, psy, hp, const, es, work):
     """The first sweep from the initial state (no bound: the variances are still 0) and the
     E-step after it; updates ``st`` in place. Returns the loop's scalars (``ctl``)."""
     bayes, a, b0, floor, fixed_x, floor_y, lam = hp
-    dg = np.diag(xx).copy()
     R, c, S_ee, _ = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, False, es, work)
     psy = _update(dg, n, es, R, c, S_ee, st, psy, bayes, a, b0, lam, floor, fixed_x, floor_y)
     R, c, S_ee, L = _estep(xx, dg, xy, yy, n, st, psy, bayes, a, b0, lam, True, es, work)
-    ctl = np.zeros(10)
+    ctl = np.zeros(9)
     ctl[_C_COUNT] = 1.0
     ctl[_C_L] = L + const
     ctl[_C_STEP] = 1.0
@@ -358,7 +368,7 @@ def start(xx, xy, yy, n, st, psy, hp, const, es, work):
 
 
 @njit(**_JIT)
-def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol, ctol, acc):
+def run(xx, dg, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol, ctol, acc):
     """EM sweeps, two at a time followed by a SQUAREM jump (if ``acc``), until a tolerance
     stops them, ``max_iter`` bounds are recorded, or ``limit`` is reached at the end of a cycle
     (to resume: call again with the same arrays). Updates ``st``, ``es``, ``ctl`` and ``hist``
@@ -369,7 +379,6 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
     bound does not decrease (NaN fails), so the recorded bounds never decrease.
     """
     bayes, a, b0, floor, fixed_x, floor_y, lam = hp
-    dg = np.diag(xx).copy()
     scale = max(n, 1.0)
     count = int(ctl[_C_COUNT])
     L, step_max = ctl[_C_L], ctl[_C_STEP]
@@ -442,7 +451,6 @@ def run(xx, xy, yy, n, st, hp, const, es, work, ctl, hist, limit, max_iter, tol,
     ctl[_C_PSY], ctl[_C_R], ctl[_C_C], ctl[_C_SEE] = psy, R, c, S_ee
     if reason == 0 and count < max_iter:
         return -1
-    ctl[_C_REASON] = reason
     return reason
 
 

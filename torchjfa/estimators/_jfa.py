@@ -42,10 +42,11 @@ _OUTPUT_ARD_WX_PRECISION = 1e-8
 class _Stats:
     """Standardised moments of the active columns (unit variance, centred if asked), float64."""
 
-    __slots__ = ("n", "xx", "xy", "yy")
+    __slots__ = ("n", "xx", "xy", "yy", "dg")
 
     def __init__(self, n: float, xx: np.ndarray, xy: np.ndarray, yy: float) -> None:
         self.n, self.xx, self.xy, self.yy = float(n), xx, xy, float(yy)
+        self.dg = np.ascontiguousarray(np.diagonal(xx))
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -196,13 +197,13 @@ class _JFABase(LinearEstimator):
         const = _em.bound_const(S.n, d, hp)
         st, psy = self._init(S, psx_fixed)
         es, work, hist = np.empty((5, d)), np.empty((7, d)), np.empty(max_iter)
-        ctl = _em.start(S.xx, S.xy, S.yy, S.n, st, psy, hp, const, es, work)
+        ctl = _em.start(S.xx, S.dg, S.xy, S.yy, S.n, st, psy, hp, const, es, work)
         hist[0] = ctl[_em._C_L]
         # without a bar, one call runs to the end; with one, calls of ~0.1 s update it
         block = _BAR_BLOCK if self.verbose else max_iter
         bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
         with bar, np.errstate(all="ignore"):  # a rejected SQUAREM trial may overflow
-            args = (S.xx, S.xy, S.yy, S.n, st, hp, const, es, work, ctl, hist)
+            args = (S.xx, S.dg, S.xy, S.yy, S.n, st, hp, const, es, work, ctl, hist)
             tols = (max_iter, float(self.tol), float(self.coef_tol), bool(self.accelerate))
             while True:
                 done = int(ctl[_em._C_COUNT])
