@@ -208,8 +208,9 @@ def _packed_rows(bayes, fixed_x):
 
 @njit(**_JIT)
 def th_size(d, bayes, fixed_x):
-    """Length of a packed state (`_pack`) for ``d`` inputs."""
-    return ((5 if bayes else 2) + (0 if fixed_x else 1)) * d + 1
+    """Length of a packed state (`_pack`) for ``d`` inputs: the rows of `_packed_rows` that
+    are not -1, ``d`` entries each, and psi_y."""
+    return ((6 if bayes else 3) + (0 if fixed_x else 1)) * d + 1
 
 
 _ULP = 2.0**-52  # a positive float64's bits times this: 1023 + a piecewise-linear log2
@@ -248,7 +249,8 @@ def _pack(st, psy, bayes, fixed_x, th):
 
     The "log" of a variance is its float64 bit pattern read as an integer and scaled by
     2^-52: 1023 + log2(x) to within 0.09, exact at powers of 2, monotone, continuous, and
-    exactly invertible (`_unpack`). SQUAREM only needs a map that keeps variances positive and
+    invertible (`_unpack`) to within about 1e-13 relative (the 63-bit integer is rounded to a
+    53-bit float). SQUAREM only needs a map that keeps variances positive and
     spreads their orders of magnitude evenly; this one costs an integer conversion where
     ``math.log`` costs most of a sweep.
     """
