@@ -1,6 +1,6 @@
 """A small end-to-end demo: identify the 7-DoF Franka Panda arm from noisy joint data.
 
-    python scripts/demo.py           # a few minutes
+    python scripts/demo.py           # about 10 s (after the first build of the EM loop)
     python scripts/demo.py --smoke   # a few seconds (CI runs this)
 
 The robot description ships with the package (`torchjfa.robots.path("panda_arm")`). The "robot" is

@@ -366,7 +366,7 @@ class BayesianJFA(_JFABase):
             with alpha_m on ``w_zm`` alone they are. Measured on the paper's Fig. 2 protocol
             at input SNR 2 (``docs/results.md``): clean-test nMSE 0.08 instead of 0.11 with
             90 irrelevant inputs, and lower in every scenario. It converges more slowly
-            (4 to 5x the iterations there). Without ``input_noise`` it is allowed but
+            (2 to 5x the iterations there). Without ``input_noise`` it is allowed but
             untested against the paper.
         noise_floor: lower bound of psi_x and psi_z as a fraction of the variance of x_m / y.
         noise_y_floor: lower bound of psi_y as a fraction of var(y). psi_y drifts towards 0
