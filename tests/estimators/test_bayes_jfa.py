@@ -369,8 +369,8 @@ def test_constant_column_gets_zero():
 @pytest.mark.parametrize("fixed_x", [True, False])
 def test_squarem_packs_every_free_row(bayes, fixed_x):
     # SQUAREM extrapolates the packed state: every free row must travel through it (an
-    # off-by-one once left psi_x, or psi_z when psi_x was fixed, out, and slowed the fits
-    # 4 to 5x); only the rows held fixed come from the template
+    # off-by-one once left psi_x, or psi_z when psi_x was fixed, out of the extrapolation);
+    # only the rows held fixed come from the template
     import numpy as np
 
     from torchjfa.estimators import _bayes_jfa as em
