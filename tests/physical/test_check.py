@@ -11,6 +11,11 @@ from torchjfa.physical import check
 LAYOUT1 = ParameterLayout(("j",), ("viscous",))
 
 
+def _vector(m, h, inertia):
+    """The 10 inertial parameters in the library's order: m, h, Ixx, Ixy, Iyy, Ixz, Iyz, Izz."""
+    return [m, *h, *(inertia[i, j] for i, j in ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2)))]
+
+
 def _from_points(points, weights):
     """The 10 inertial parameters of point masses, summed directly (no library code)."""
     points = np.asarray(points, dtype=float)
@@ -20,16 +25,7 @@ def _from_points(points, weights):
     inertia = np.zeros((3, 3))
     for w, p in zip(weights, points, strict=True):
         inertia += w * ((p @ p) * np.eye(3) - np.outer(p, p))
-    return [
-        m,
-        *h,
-        inertia[0, 0],
-        inertia[0, 1],
-        inertia[1, 1],
-        inertia[0, 2],
-        inertia[1, 2],
-        inertia[2, 2],
-    ]
+    return _vector(m, h, inertia)
 
 
 def _from_com_inertia(m, com, inertia_c):
@@ -37,16 +33,7 @@ def _from_com_inertia(m, com, inertia_c):
     inertia = np.asarray(inertia_c, dtype=float) + m * (
         (com @ com) * np.eye(3) - np.outer(com, com)
     )
-    return [
-        m,
-        *(m * com),
-        inertia[0, 0],
-        inertia[0, 1],
-        inertia[1, 1],
-        inertia[0, 2],
-        inertia[1, 2],
-        inertia[2, 2],
-    ]
+    return _vector(m, m * com, inertia)
 
 
 def _criteria(pi, friction):

@@ -2,38 +2,24 @@ import math
 
 import pytest
 import torch
+from _bodies import cloud_bodies, make_layout
 
-from torchjfa.dynamics import ParameterLayout, inertial_vector, pseudo_inertia
+from torchjfa.dynamics import inertial_vector, pseudo_inertia
 from torchjfa.physical import LogCholeskyParameters, VirtualParameters, check
 
 PARAMETRIZATIONS = [VirtualParameters, LogCholeskyParameters]
 FRICTIONS = [("viscous",), ("viscous", "coulomb", "offset"), ()]
 
 
-def _layout(n_joints, friction=("viscous",)):
-    return ParameterLayout(tuple(f"j{i}" for i in range(n_joints)), friction)
-
-
 def _consistent_theta(layout, g):
     """Random bodies with a positive definite pseudo-inertia (point clouds), positive friction,
     any offset."""
-    bodies = []
-    for _ in range(layout.n_joints):
-        points = torch.randn(6, 3, generator=g, dtype=torch.float64) * 0.2
-        weights = torch.rand(6, generator=g, dtype=torch.float64) + 0.1
-        mass = weights.sum()
-        com = (weights[:, None] * points).sum(0) / mass
-        rel = points - com
-        inertia = sum(
-            w * ((r @ r) * torch.eye(3, dtype=torch.float64) - torch.outer(r, r))
-            for w, r in zip(weights, rel, strict=True)
-        )
-        bodies.append(inertial_vector(mass, com, inertia))
+    bodies = cloud_bodies(layout.n_joints, g, n_points=6, min_weight=0.1)
     friction = torch.rand(layout.n_joints, layout.n_friction, generator=g, dtype=torch.float64)
     for k, kind in enumerate(layout.friction):
         if kind == "offset":
             friction[:, k] -= 0.5
-    return layout.join(torch.stack(bodies), friction + 0.05)
+    return layout.join(bodies, friction + 0.05)
 
 
 def _eq5_written_out(phi):
@@ -60,7 +46,7 @@ def _eq5_written_out(phi):
 
 def test_virtual_parameters_match_eq5_of_the_paper():
     g = torch.Generator().manual_seed(0)
-    layout = _layout(3)
+    layout = make_layout(3)
     phi = torch.randn(3, 11, generator=g, dtype=torch.float64)
     theta = VirtualParameters(layout, phi=phi)()
     expected = torch.cat([_eq5_written_out(row) for row in phi])
@@ -69,7 +55,7 @@ def test_virtual_parameters_match_eq5_of_the_paper():
 
 def test_log_cholesky_matches_written_out_factor():
     g = torch.Generator().manual_seed(1)
-    layout = _layout(2, ())
+    layout = make_layout(2, ())
     phi = torch.randn(2, 10, generator=g, dtype=torch.float64)
     theta = LogCholeskyParameters(layout, phi=phi)()
     for j in range(2):
@@ -91,7 +77,7 @@ def test_log_cholesky_matches_written_out_factor():
 @pytest.mark.parametrize("friction", FRICTIONS)
 def test_every_phi_is_consistent(cls, friction):
     g = torch.Generator().manual_seed(2)
-    layout = _layout(5, friction)
+    layout = make_layout(5, friction)
     for _ in range(5):
         phi = 2 * torch.randn(5, layout.params_per_joint, generator=g, dtype=torch.float64)
         theta = cls(layout, phi=phi)()
@@ -105,7 +91,7 @@ def test_every_phi_is_consistent(cls, friction):
 
 def test_virtual_parameters_can_violate_triangle_inequality():
     # eq. 5 only makes I_c positive semidefinite: I_c = diag(1, 1, 9) m^2 kg breaks 1 + 1 >= 9
-    layout = _layout(1)
+    layout = make_layout(1)
     phi = torch.tensor([[1.0, 0, 0, 0, 1.0, 0, 0, 1.0, 0, 3.0, 0.5]], dtype=torch.float64)
     report = check(VirtualParameters(layout, phi=phi)(), layout)
     assert report.weakly_ok and not report.ok
@@ -116,7 +102,7 @@ def test_virtual_parameters_can_violate_triangle_inequality():
 @pytest.mark.parametrize("friction", FRICTIONS)
 def test_from_theta_is_exact_on_consistent_parameters(cls, friction):
     g = torch.Generator().manual_seed(3)
-    layout = _layout(4, friction)
+    layout = make_layout(4, friction)
     theta = _consistent_theta(layout, g)
     module = cls.from_theta(theta, layout)
     torch.testing.assert_close(module(), theta, rtol=1e-10, atol=1e-10)
@@ -124,7 +110,7 @@ def test_from_theta_is_exact_on_consistent_parameters(cls, friction):
 
 def test_virtual_from_theta_is_exact_on_singular_inertia():
     # a point mass and a thin rod: I_c singular but PSD, representable exactly by eq. 5
-    layout = _layout(2, ())
+    layout = make_layout(2, ())
     m = torch.tensor([1.5, 2.0], dtype=torch.float64)
     com = torch.tensor([[0.1, 0.2, -0.1], [0.0, 0.3, 0.0]], dtype=torch.float64)
     rod = torch.diag(torch.tensor([0.04, 0.0, 0.04], dtype=torch.float64))
@@ -136,7 +122,7 @@ def test_virtual_from_theta_is_exact_on_singular_inertia():
 @pytest.mark.parametrize("cls", PARAMETRIZATIONS)
 def test_from_theta_repairs_inconsistent_parameters(cls):
     g = torch.Generator().manual_seed(4)
-    layout = _layout(6, ("viscous", "coulomb", "offset"))
+    layout = make_layout(6, ("viscous", "coulomb", "offset"))
     theta = torch.randn(layout.n_params, generator=g, dtype=torch.float64)
     assert not check(theta, layout).weakly_ok
     out = cls.from_theta(theta, layout)()
@@ -155,7 +141,7 @@ def test_from_theta_repairs_inconsistent_parameters(cls):
 @pytest.mark.parametrize("cls", PARAMETRIZATIONS)
 def test_gradient_matches_finite_differences(cls):
     g = torch.Generator().manual_seed(5)
-    layout = _layout(2, ("viscous", "coulomb", "offset"))
+    layout = make_layout(2, ("viscous", "coulomb", "offset"))
     module = cls(layout)
     phi = 0.5 * torch.randn(2, layout.params_per_joint, generator=g, dtype=torch.float64)
 
@@ -168,7 +154,7 @@ def test_gradient_matches_finite_differences(cls):
 @pytest.mark.parametrize("cls", PARAMETRIZATIONS)
 def test_dtype_follows_module_and_layout_from_model(cls):
     class Model:
-        layout = _layout(3)
+        layout = make_layout(3)
 
     module = cls(Model())
     assert module().dtype == torch.float64
@@ -181,7 +167,7 @@ def test_dtype_follows_module_and_layout_from_model(cls):
 
 @pytest.mark.parametrize("cls", PARAMETRIZATIONS)
 def test_bad_input_raises(cls):
-    layout = _layout(2)
+    layout = make_layout(2)
     with pytest.raises(TypeError, match="ParameterLayout"):
         cls("not a layout")
     with pytest.raises(ValueError, match="phi must have shape"):

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 import torch
+from _bodies import cloud_bodies, make_layout
 
 from torchjfa import Moments
 from torchjfa.dynamics import ParameterLayout, inertial_vector, pseudo_inertia
@@ -9,26 +10,11 @@ from torchjfa.physical import LogCholeskyParameters, VirtualParameters, check, p
 PARAMETRIZATIONS = ["virtual", "log-cholesky"]
 
 
-def _layout(n_joints, friction=("viscous",)):
-    return ParameterLayout(tuple(f"j{i}" for i in range(n_joints)), friction)
-
-
 def _cloud_theta(layout, g):
     """Fully consistent random bodies (point clouds), positive friction."""
-    bodies = []
-    for _ in range(layout.n_joints):
-        points = torch.randn(5, 3, generator=g, dtype=torch.float64) * 0.2
-        weights = torch.rand(5, generator=g, dtype=torch.float64) + 0.2
-        mass = weights.sum()
-        com = (weights[:, None] * points).sum(0) / mass
-        rel = points - com
-        inertia = sum(
-            w * ((r @ r) * torch.eye(3, dtype=torch.float64) - torch.outer(r, r))
-            for w, r in zip(weights, rel, strict=True)
-        )
-        bodies.append(inertial_vector(mass, com, inertia))
+    bodies = cloud_bodies(layout.n_joints, g, n_points=5, min_weight=0.2)
     friction = torch.rand(layout.n_joints, layout.n_friction, generator=g, dtype=torch.float64)
-    return layout.join(torch.stack(bodies), friction + 0.05)
+    return layout.join(bodies, friction + 0.05)
 
 
 def _inconsistent(layout, g):
@@ -79,7 +65,7 @@ def _cost(theta, theta_hat, M):
 @pytest.mark.parametrize("n_joints", [1, 2, 4, 10])
 def test_projection_is_consistent_and_beats_clipping(parametrization, n_joints):
     g = torch.Generator().manual_seed(n_joints)
-    layout = _layout(n_joints)
+    layout = make_layout(n_joints)
     theta_hat = _inconsistent(layout, g)
     M = _metric(layout, g, rank_deficiency=min(3, n_joints))
     assert not check(theta_hat, layout).weakly_ok
@@ -103,7 +89,7 @@ def test_projection_is_consistent_and_beats_clipping(parametrization, n_joints):
 @pytest.mark.parametrize("friction", [("viscous",), ("viscous", "coulomb", "offset")])
 def test_consistent_theta_comes_back_unchanged(parametrization, friction):
     g = torch.Generator().manual_seed(7)
-    layout = _layout(5, friction)
+    layout = make_layout(5, friction)
     theta_hat = _cloud_theta(layout, g)
     M = _metric(layout, g)
     result = project(theta_hat, layout=layout, metric=M, parametrization=parametrization)
@@ -114,7 +100,7 @@ def test_consistent_theta_comes_back_unchanged(parametrization, friction):
 
 
 def test_virtual_keeps_triangle_violation_log_cholesky_removes_it():
-    layout = _layout(1)
+    layout = make_layout(1)
     pi = inertial_vector(
         torch.tensor(2.0, dtype=torch.float64),
         torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64),
@@ -132,7 +118,7 @@ def test_virtual_keeps_triangle_violation_log_cholesky_removes_it():
 def test_log_cholesky_reaches_the_eigenvalue_clipped_pseudo_inertia():
     # with the metric that makes theta -> J an isometry onto (Frobenius) 4x4 matrices, the
     # closest positive semidefinite pseudo-inertia is the eigenvalue-clipped one
-    layout = _layout(1, ())
+    layout = make_layout(1, ())
     T = torch.stack([pseudo_inertia(e).reshape(-1) for e in torch.eye(10, dtype=torch.float64)], 1)
     M = T.T @ T  # (theta - t)^T M (theta - t) = ||J(theta) - J(t)||_F^2
     theta_hat = inertial_vector(
@@ -151,7 +137,7 @@ def test_log_cholesky_reaches_the_eigenvalue_clipped_pseudo_inertia():
 def test_virtual_reaches_written_out_optimum():
     # metric = identity, a body with centre of mass at the origin and diagonal inertia: the
     # closest PSD inertia clips the negative moment, friction is clipped at 0
-    layout = _layout(2)
+    layout = make_layout(2)
     theta_hat = torch.tensor(
         [2.0, 0, 0, 0, 0.1, 0, 0.2, 0, 0, -0.05, -0.3]
         + [-1.0, 0, 0, 0, 0.1, 0, 0.1, 0, 0, 0.1, 0.4],
@@ -169,7 +155,7 @@ def test_virtual_reaches_written_out_optimum():
 
 def test_prior_fills_unexcited_parameters():
     g = torch.Generator().manual_seed(3)
-    layout = _layout(2)
+    layout = make_layout(2)
     prior = _cloud_theta(layout, g)
     theta_hat = _inconsistent(layout, g)
     X = torch.randn(100, 22, generator=g, dtype=torch.float64)
@@ -188,7 +174,7 @@ def test_prior_fills_unexcited_parameters():
 
 def test_moments_with_input_noise_equal_the_written_metric():
     g = torch.Generator().manual_seed(4)
-    layout = _layout(2)
+    layout = make_layout(2)
     X = torch.randn(300, 22, generator=g, dtype=torch.float64)
     theta_hat = _inconsistent(layout, g)
     y = X @ theta_hat
@@ -202,7 +188,7 @@ def test_moments_with_input_noise_equal_the_written_metric():
 
 def test_accepts_estimators_models_and_float32():
     g = torch.Generator().manual_seed(5)
-    layout = _layout(3)
+    layout = make_layout(3)
     theta_hat = _inconsistent(layout, g)
     M = _metric(layout, g, rank_deficiency=0)
 
@@ -238,7 +224,7 @@ def test_report_is_readable():
 
 
 def test_bad_input_raises():
-    layout = _layout(2)
+    layout = make_layout(2)
     theta = torch.zeros(22, dtype=torch.float64)
     M = torch.eye(22, dtype=torch.float64)
     moments = Moments.from_data(torch.randn(30, 22), torch.randn(30))
@@ -268,7 +254,7 @@ def test_bad_input_raises():
 @pytest.mark.parametrize("friction", [(), ("viscous", "coulomb", "offset")])
 def test_friction_terms(parametrization, friction):
     g = torch.Generator().manual_seed(8)
-    layout = _layout(3, friction)
+    layout = make_layout(3, friction)
     theta_hat = _cloud_theta(layout, g).reshape(3, -1).clone()
     theta_hat[0, 0] = -1.0
     if friction:
@@ -288,7 +274,7 @@ def test_friction_terms(parametrization, friction):
 
 def test_verbose_prints_the_table(capsys):
     g = torch.Generator().manual_seed(9)
-    layout = _layout(2)
+    layout = make_layout(2)
     project(_inconsistent(layout, g), layout=layout, metric=_metric(layout, g), verbose=True)
     out = capsys.readouterr().out
     assert "projection (virtual)" in out and "j1" in out
