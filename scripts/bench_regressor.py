@@ -4,9 +4,10 @@ The robot is ``torchjfa/robots/panda_arm.urdf`` (the Panda with its finger joint
 revolute joints, 77 parameters with viscous friction); Pinocchio and MuJoCo load the same file.
 For each batch size, in one run on this machine:
 
-* torchjfa ``RigidBodyModel.regressor`` (float64 and float32) with 1 and with 2 torch threads
-  (``--threads``), samples per second, best of ``--repeats``; the output ``(B, 7, 77)`` is
-  allocated by each call;
+* torchjfa ``RigidBodyModel.regressor(..., compiled=False)``, the torch path (float64 and
+  float32) with 1 and with 2 torch threads set (``--threads``; the torch path runs its small ops
+  on one intra-op thread whatever is set, so the two differ only by noise), samples per second,
+  best of ``--repeats``; the output ``(B, 7, 77)`` is allocated by each call;
 * Pinocchio ``computeJointTorqueRegressor`` called sample by sample from Python (the
   benchmark-only extra ``pin``), both discarding each result and storing it into a preallocated
   ``(B, 7, 70)`` array (the same job as a batched regressor);
@@ -18,7 +19,7 @@ For each batch size, in one run on this machine:
 
 It prints the ratios torchjfa / Pinocchio and the peak resident memory, checks first that
 Pinocchio's model is the same robot (``Y_pin @ pi_pin`` against ``Y @ nominal_theta``) and that
-the compiled kernel gives the default path's regressor, and ends with a summary table.
+the compiled kernel (the default wherever a C++ compiler is found) gives the torch path's regressor, and ends with a summary table.
 
     python scripts/bench_regressor.py                 # batches 1e3, 1e4, 1e5; 1 and 2 threads
     python scripts/bench_regressor.py --batches 1000 --repeats 1   # quick
@@ -129,7 +130,7 @@ def run(
             else:
                 os.environ["TORCHJFA_CACHE_DIR"] = previous
     Y_c = model.regressor(qs, qds, qdds, compiled=True)
-    Y_d = model.regressor(qs, qds, qdds)
+    Y_d = model.regressor(qs, qds, qdds, compiled=False)
     rel = float((Y_c - Y_d).abs().max() / Y_d.abs().max())
     print(
         f"compiled kernel: generated and compiled in {build[torch.float64]:.1f} s (float64), "
@@ -145,8 +146,13 @@ def run(
             torch.set_num_threads(nt if nt > 0 else default_threads)
             for dtype in (torch.float64, torch.float32):
                 tq, tqd, tqdd = (torch.as_tensor(v, dtype=dtype) for v in (q, qd, qdd))
-                model.regressor(tq[:10], tqd[:10], tqdd[:10])  # warm-up
-                t = _best(lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd), repeats)
+                model.regressor(tq[:10], tqd[:10], tqdd[:10], compiled=False)  # warm-up
+                t = _best(
+                    lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(
+                        tq, tqd, tqdd, compiled=False
+                    ),
+                    repeats,
+                )
                 row[f"torchjfa_{str(dtype)[6:]}_t{nt}"] = B / t
 
                 def compiled(tq=tq, tqd=tqd, tqdd=tqdd):
@@ -158,14 +164,16 @@ def run(
                     row["cpu_compiled_float64"] = B / _best(compiled, repeats, time.process_time)
                 if nt == 1 and dtype == torch.float64:
                     row["cpu_torchjfa_float64"] = B / _best(
-                        lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(tq, tqd, tqdd),
+                        lambda tq=tq, tqd=tqd, tqdd=tqdd: model.regressor(
+                            tq, tqd, tqdd, compiled=False
+                        ),
                         repeats,
                         time.process_time,
                     )
                     reuse = torch.empty(B, n, model.n_params, dtype=dtype)
 
                     def into(tq=tq, tqd=tqd, tqdd=tqdd, reuse=reuse):
-                        model.regressor(tq, tqd, tqdd, out=reuse)
+                        model.regressor(tq, tqd, tqdd, out=reuse, compiled=False)
 
                     into()  # first touch of the reused output
                     row["torchjfa_float64_out"] = B / _best(into, repeats)

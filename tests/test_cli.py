@@ -140,8 +140,8 @@ def test_compiled_regressor_gives_the_same_fit(head_csv, tmp_path, capsys, monke
         pytest.skip("no C++ compiler")
     monkeypatch.setenv("TORCHJFA_CACHE_DIR", str(tmp_path / "kernels"))
     reports = []
-    for flag in ((), ("--compiled",)):
-        out = tmp_path / f"r{len(flag)}"
+    for flag in (("--no-compiled",), ("--compiled",)):
+        out = tmp_path / flag[0].strip("-")
         code, _, err = _identify(
             capsys,
             "head",

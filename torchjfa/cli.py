@@ -478,9 +478,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--compiled",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=None,
         help="form the regressor with a C++ kernel generated for the robot (several times "
-        "faster; needs a C++ compiler, about 2 s to build the first time)",
+        "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
+        "found, else the torch path",
     )
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--smoke", action="store_true", help="quick check: the first seconds only")

@@ -273,7 +273,7 @@ def stream_moments(
     progress: bool = False,
     joint_weights=None,
     per_joint: bool = False,
-    compiled: bool = False,
+    compiled: bool | None = None,
 ) -> Moments | list[Moments]:
     """`Moments` of ``tau ~ Y(q, qd, qdd) theta`` over all samples of the logs, streamed.
 
@@ -300,9 +300,10 @@ def stream_moments(
             squares, see `residual_joint_weights`); default 1.
         per_joint: return, in place of each `Moments`, a list of ``n_dof`` `Moments` of each
             joint's rows alone (model joint order).
-        compiled: form the regressor with the C++ kernel generated for the robot
-            (`RigidBodyModel.regressor` with ``compiled=True``: several times faster, needs a
-            C++ compiler; the first call compiles it, about 2 s for 7 joints).
+        compiled: which path forms the regressor (`RigidBodyModel.regressor`): None (the
+            default) the C++ kernel generated for the robot where a C++ compiler is there
+            (several times faster; the first call compiles it, about 2 s for 7 joints), the
+            torch path otherwise; True insists on the kernel, False takes the torch path.
 
     Returns:
         One `Moments` with ``n_features = model.n_params`` and one row per sample and joint,
@@ -523,7 +524,7 @@ def identify(
     progress: bool = False,
     jackknife: int = 0,
     joint_weights=None,
-    compiled: bool = False,
+    compiled: bool | None = None,
 ) -> IdentificationResult:
     """Identify a robot's parameters from joint logs in one streaming pass.
 
@@ -564,8 +565,7 @@ def identify(
         joint_weights: ``(n_dof,)`` weight of each joint's equations (weighted least squares;
             e.g. `residual_joint_weights`). ``input_noise`` must then be of the weighted rows
             (`torchjfa.sim.regressor_noise` takes the same weights).
-        compiled: form the regressor with the robot's compiled C++ kernel (see
-            `stream_moments`).
+        compiled: which path forms the regressor (see `stream_moments`).
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,

@@ -1,4 +1,4 @@
-"""The compiled regressor (generated C++) against the default path."""
+"""The compiled regressor (generated C++, the default where a compiler is found) against the torch path."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_compiled_equals_default(name, dtype):
     # 37 samples: not a multiple of the 8 (16 in float32) samples of a block
     for batch in [(37,), (3, 4), (1,)]:
         q, qd, qdd = (v.to(dtype) for v in random_state(model.n_dof, batch, seed=len(batch)))
-        expected = model.regressor(q, qd, qdd)
+        expected = model.regressor(q, qd, qdd, compiled=False)
         Y = model.regressor(q, qd, qdd, compiled=True)
         assert Y.shape == expected.shape and Y.dtype == dtype and not Y.requires_grad
         _assert_close(Y, expected, dtype)
@@ -92,7 +92,7 @@ def test_slide_joints_with_children(tmp_path, dtype):
     assert model.joint_types == ("prismatic", "revolute", "prismatic", "revolute")
     q, qd, qdd = random_state(model.n_dof, (19,), seed=8)
     Y = model.regressor(q.to(dtype), qd.to(dtype), qdd.to(dtype), compiled=True)
-    _assert_close(Y, model.regressor(q, qd, qdd).to(dtype), dtype)
+    _assert_close(Y, model.regressor(q, qd, qdd, compiled=False).to(dtype), dtype)
     if dtype == torch.float64:
         expected = mujoco_inverse(
             mujoco_model("mjcf", str(path)), q.numpy(), qd.numpy(), qdd.numpy()
@@ -105,7 +105,7 @@ def test_friction_columns_and_empty_batch():
     model = _model("small_urdf", friction=("viscous", "coulomb", "offset"))
     q, qd, qdd = random_state(model.n_dof, (21,), seed=3)
     qd[:5, 0] = 0.0  # sign(0) = 0
-    expected = model.regressor(q, qd, qdd)
+    expected = model.regressor(q, qd, qdd, compiled=False)
     Y = model.regressor(q, qd, qdd, compiled=True)
     _assert_close(Y, expected, torch.float64)
     for j in range(model.n_dof):
@@ -119,7 +119,7 @@ def test_friction_columns_and_empty_batch():
 def test_threads_out_and_streaming():
     model = _model("branched_tree")
     q, qd, qdd = random_state(model.n_dof, (5003,), seed=4)  # 2 threads at 2048+ samples each
-    expected = model.regressor(q, qd, qdd)
+    expected = model.regressor(q, qd, qdd, compiled=False)
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
@@ -136,7 +136,7 @@ def test_threads_out_and_streaming():
     rows = torch.cat([c[0] for c in chunks])
     _assert_close(rows, expected.reshape(-1, model.n_params), torch.float64)
     m = model.moments(q, qd, qdd, tau, compiled=True)
-    ref = model.moments(q, qd, qdd, tau)
+    ref = model.moments(q, qd, qdd, tau, compiled=False)
     _assert_close(m.xtx, ref.xtx, torch.float64)
     _assert_close(m.xty, ref.xty, torch.float64)
 
@@ -169,7 +169,7 @@ def test_compile_regressor_cache_and_pickle():
     q, qd, qdd = (v.float() for v in random_state(model.n_dof, (9,), seed=6))
     out = torch.empty(9, model.n_dof, model.n_params)
     kernel(out, q, qd, qdd)
-    _assert_close(out, model.regressor(q, qd, qdd), torch.float32)
+    _assert_close(out, model.regressor(q, qd, qdd, compiled=False), torch.float32)
 
 
 def test_no_compiler_raises(monkeypatch):
@@ -178,3 +178,57 @@ def test_no_compiler_raises(monkeypatch):
     q, qd, qdd = random_state(model.n_dof, (2,), seed=7)
     with pytest.raises(RuntimeError, match="C\\+\\+ compiler"):
         model.regressor(q, qd, qdd, compiled=True)
+
+
+def test_default_is_the_kernel_and_a_fresh_build_says_so(tmp_path, monkeypatch, notes):
+    monkeypatch.setenv("TORCHJFA_CACHE_DIR", str(tmp_path / "empty"))
+    model = _model("small_urdf")
+    q, qd, qdd = random_state(model.n_dof, (5,), seed=8)
+    Y = model.regressor(q, qd, qdd)
+    assert model._kernels[torch.float64] is not None  # compiled=None took the kernel
+    assert not model._kernels[torch.float64].from_cache
+    assert sum("compiling the regressor kernel" in r.getMessage() for r in notes.records) == 1
+    _assert_close(Y, model.regressor(q, qd, qdd, compiled=False), torch.float64)
+    # a second model of the same robot loads the kernel from the cache, without a note
+    other = _model("small_urdf")
+    other.regressor(q, qd, qdd)
+    assert other._kernels[torch.float64].from_cache
+    assert sum("compiling" in r.getMessage() for r in notes.records) == 1
+
+
+def test_default_falls_back_to_the_torch_path_with_one_note(monkeypatch, notes):
+    monkeypatch.setattr(codegen.shutil, "which", lambda name: None)
+    model = _model("small_urdf")
+    q, qd, qdd = random_state(model.n_dof, (3,), seed=9)
+    threads = torch.get_num_threads()
+    Y = model.regressor(q, qd, qdd)
+    model.regressor(q, qd, qdd)
+    _model("small_urdf").regressor(q, qd, qdd)
+    fallbacks = [r for r in notes.records if "torch path runs" in r.getMessage()]
+    assert len(fallbacks) == 1 and "C++ compiler" in fallbacks[0].getMessage()
+    assert model._kernels[torch.float64] is None
+    assert torch.get_num_threads() == threads  # the torch path restores the thread count
+    monkeypatch.undo()  # the compiler is back: the forced path builds the kernel now
+    _assert_close(Y, model.regressor(q, qd, qdd, compiled=True), torch.float64)
+
+
+def test_torch_path_runs_on_one_thread_and_restores(monkeypatch):
+    import torchjfa.dynamics._model as model_module
+
+    seen = []
+    fast = model_module.regressor_fast
+
+    def spy(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return fast(*args, **kwargs)
+
+    monkeypatch.setattr(model_module, "regressor_fast", spy)
+    model = _model("small_urdf")
+    q, qd, qdd = random_state(model.n_dof, (3,), seed=10)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        model.regressor(q, qd, qdd, compiled=False)
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(previous)

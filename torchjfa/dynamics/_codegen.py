@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._notes import note
 from ._tree import KinematicTree
 
 __all__ = ["RegressorKernel", "kernel_source", "build_kernel"]
@@ -369,7 +370,7 @@ def _compiler() -> str:
             return cand
     raise RuntimeError(
         "compiled=True needs a C++ compiler (set CXX, or install g++): none of CXX, g++, c++, "
-        "clang++ is on PATH; use the default compiled=False"
+        "clang++ is on PATH; use compiled=False (the torch path)"
     )
 
 
@@ -400,6 +401,10 @@ def _compile(source: str) -> tuple[Path, bool]:
     lib = folder / f"regressor_{key}.so"
     if lib.is_file():
         return lib, True
+    note(
+        f"compiling the regressor kernel for this robot with {cxx} (a few seconds, once per "
+        f"robot, dtype and machine; cached in {folder})"
+    )
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:  # an unwritable cache: build in a fresh temporary folder instead

@@ -8,6 +8,7 @@ the `Moments` an estimator fits. `InverseDynamics` wraps a model and a theta as 
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .._notes import note
 from .._progress import progress_bar
 from .._validation import as_tensor, check_finite
 from ..stats import Moments
@@ -29,6 +31,26 @@ _DEFAULT_CHUNK = 1024
 _NUMPY_ALLOC_MIN = 1 << 20  # elements
 _NP_DTYPES = {torch.float64: np.float64, torch.float32: np.float32}
 _COMPILED_DTYPES = (torch.float64, torch.float32)
+
+
+@contextlib.contextmanager
+def _one_intra_op_thread(x: torch.Tensor):
+    """Run the torch path's many small CPU ops on one intra-op thread, then restore.
+
+    Each op of the eager regressor works on one chunk (a few thousand samples); splitting such
+    ops across threads gains little on an idle machine (0.54x vs 0.63x Pinocchio on 1 and 2
+    threads, docs/benchmarks.md) and collapses when the cores are busy (0.07x measured on a
+    loaded 2-core machine), because every op waits for its slowest thread.
+    """
+    threads = torch.get_num_threads()
+    if x.device.type != "cpu" or threads == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 @dataclass(frozen=True)
@@ -87,7 +109,7 @@ class RigidBodyModel:
         self.source_path = source_path
         self.source_format = source_format
         self._constants: dict[tuple[torch.dtype, torch.device], TreeConstants] = {}
-        self._kernels: dict[torch.dtype, RegressorKernel] = {}
+        self._kernels: dict[torch.dtype, RegressorKernel | None] = {}
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -271,7 +293,7 @@ class RigidBodyModel:
         *,
         chunk_size: int | None = None,
         out: torch.Tensor | None = None,
-        compiled: bool = False,
+        compiled: bool | None = None,
     ) -> torch.Tensor:
         """The dynamics regressor: ``tau = Y(q, qd, qdd) @ theta``.
 
@@ -285,17 +307,24 @@ class RigidBodyModel:
             out: optional contiguous ``(*batch, n_dof, n_params)`` tensor of the inputs' dtype
                 and device to write into (no allocation: reusing one output across calls saves
                 the first-touch cost of fresh memory); not with inputs that require grad.
-            compiled: run a C++ kernel generated for this robot (`torchjfa.dynamics._codegen`:
-                the same maths with the tree's constants folded in; on the 7-DoF Panda arm at
-                batch 1e5, one thread, about 6x the default path and 3x Pinocchio, see
-                docs/benchmarks.md). It applies to CPU float64/float32 inputs that do not
-                require grad and gives the default path's result to about 1e-15 relative in
-                float64 (1e-7 in float32); anything else (inputs that require grad: the kernel
-                has no autograd; other devices or dtypes) runs the default path. The first call
-                per dtype generates the kernel and compiles it with the system C++ compiler
-                (``CXX`` or ``g++``): about 2 s for the Panda arm, then loaded from a disk cache
-                (``$TORCHJFA_CACHE_DIR``, default ``~/.cache/torchjfa``) in milliseconds; see
-                `compile_regressor`. Uses ``torch.get_num_threads()`` threads on large batches.
+            compiled: which path computes Y. The compiled path is a C++ kernel generated for
+                this robot (`torchjfa.dynamics._codegen`: the same maths with the tree's
+                constants folded in; on the 7-DoF Panda arm at batch 1e5, one thread, about 6x
+                the torch path and 3x Pinocchio, see docs/benchmarks.md), for CPU
+                float64/float32 inputs that do not require grad; it gives the torch path's
+                result to about 1e-15 relative in float64 (1e-7 in float32). ``None`` (the
+                default) takes it wherever it applies and a C++ compiler is there; without a
+                compiler, or if compiling fails, it says so once (the ``"torchjfa"`` logger)
+                and runs the torch path. ``True`` insists (raises without a compiler);
+                ``False`` always runs the torch path. Inputs that require grad (the kernel has
+                no autograd), other devices and dtypes always run the torch path. The first
+                compiled call per robot and dtype generates the kernel and compiles it with
+                the system C++ compiler (``CXX`` or ``g++``; about 2 s for the Panda arm, with
+                a note), after that it loads from a disk cache (``$TORCHJFA_CACHE_DIR``,
+                default ``~/.cache/torchjfa``) in milliseconds; see `compile_regressor`. The
+                kernel uses ``torch.get_num_threads()`` threads on large batches; the torch
+                path runs its many small ops on one intra-op thread, which keeps it from
+                collapsing when the cores are busy.
 
         Returns:
             ``(*batch, n_dof, n_params)`` in the inputs' dtype and device (float64 for
@@ -324,15 +353,30 @@ class RigidBodyModel:
             return Y.reshape(shape)
         step = _DEFAULT_CHUNK if chunk_size is None else _check_chunk(chunk_size)
         Y = _new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
-        if compiled and q2.device.type == "cpu" and q2.dtype in _COMPILED_DTYPES:
-            self._kernel(q2.dtype)(Y, q2, qd2, qdd2)  # writes every entry
+        kernel = None
+        if compiled is not False and q2.device.type == "cpu" and q2.dtype in _COMPILED_DTYPES:
+            kernel = self._kernel(q2.dtype, required=bool(compiled))
+        if kernel is not None:
+            kernel(Y, q2, qd2, qdd2)  # writes every entry
         else:
-            regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # every entry
+            with _one_intra_op_thread(q2):
+                regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # every entry
         return Y.reshape(shape) if out is None else out
 
-    def _kernel(self, dtype: torch.dtype) -> RegressorKernel:
-        if dtype not in self._kernels:
-            self._kernels[dtype] = RegressorKernel(self._tree, self.friction, dtype)
+    def _kernel(self, dtype: torch.dtype, *, required: bool = True) -> RegressorKernel | None:
+        """The compiled kernel for ``dtype``; None when it cannot be built and not ``required``."""
+        if self._kernels.get(dtype) is None and (required or dtype not in self._kernels):
+            try:
+                self._kernels[dtype] = RegressorKernel(self._tree, self.friction, dtype)
+            except RuntimeError as exc:
+                if required:
+                    raise
+                self._kernels[dtype] = None  # not again for this model and dtype
+                note(
+                    "the compiled regressor is not available here, so the slower torch path "
+                    f"runs ({str(exc).splitlines()[0]})",
+                    key="regressor-fallback",
+                )
         return self._kernels[dtype]
 
     def compile_regressor(self, dtype: torch.dtype = torch.float64) -> float:
@@ -354,7 +398,7 @@ class RigidBodyModel:
         """
         if dtype not in _COMPILED_DTYPES:
             raise ValueError(f"the compiled regressor supports float64 and float32, got {dtype}")
-        if dtype in self._kernels:
+        if self._kernels.get(dtype) is not None:
             return 0.0
         return self._kernel(dtype).build_seconds
 
@@ -365,7 +409,7 @@ class RigidBodyModel:
         return Y @ theta
 
     def regressor_chunks(
-        self, q, qd, qdd, tau, *, chunk_size: int = 4096, compiled: bool = False
+        self, q, qd, qdd, tau, *, chunk_size: int = 4096, compiled: bool | None = None
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """Stream the stacked regression rows, ``chunk_size`` samples at a time.
 
@@ -396,7 +440,7 @@ class RigidBodyModel:
         *,
         chunk_size: int = 4096,
         progress: bool = False,
-        compiled: bool = False,
+        compiled: bool | None = None,
     ) -> Moments:
         """`Moments` of ``tau ~ Y theta`` over all samples, never holding the whole Y.
 

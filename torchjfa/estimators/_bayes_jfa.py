@@ -27,9 +27,12 @@ residual sum of squares ``S_ee``.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 from numba import njit
+
+from .._notes import note
 
 _LOG_2PI = math.log(2.0 * math.pi)
 _STEP_GROWTH = 4.0  # SQUAREM: growth of the largest step after a step at the cap is accepted
@@ -487,3 +490,23 @@ def bound_const(n: float, d: int, hp: tuple) -> float:
 def coef(st: np.ndarray, bayes: bool) -> np.ndarray:
     """Eq. (4) of a state (`_coef`), callable from Python."""
     return _coef(st, bayes)
+
+
+def note_first_compile() -> None:
+    """Say once, before the first fit of a process, when the loop is not in Numba's disk cache.
+
+    Compiling takes about 10 s on this project's machines, once per machine (then Numba loads
+    it from ``__pycache__`` or ``$NUMBA_CACHE_DIR`` in about 0.4 s per process).
+    """
+    if run.signatures:  # compiled or loaded in this process already
+        return
+    try:
+        index = run._cache._cache_file._index_path  # Numba internals: skip the note if moved
+    except AttributeError:
+        return
+    if not os.path.exists(index):
+        note(
+            "compiling the (Bayesian) JFA EM loop with Numba (about 10 s, once per machine; "
+            f"cached in {os.path.dirname(index)})",
+            key="numba-compile",
+        )

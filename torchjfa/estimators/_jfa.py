@@ -196,6 +196,7 @@ class _JFABase(LinearEstimator):
         d, max_iter = S.xy.shape[0], int(self.max_iter)
         const = _em.bound_const(S.n, d, hp)
         st, psy = self._init(S, psx_fixed)
+        _em.note_first_compile()
         es, work, hist = np.empty((5, d)), np.empty((7, d)), np.empty(max_iter)
         ctl = _em.start(S.xx, S.dg, S.xy, S.yy, S.n, st, psy, hp, const, es, work)
         hist[0] = ctl[_em._C_L]
