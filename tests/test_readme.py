@@ -1,0 +1,26 @@
+"""The README's quick start runs as written."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _quick_start() -> str:
+    text = README.read_text(encoding="utf-8")
+    match = re.search(r"^## Quick start\n\n```python\n(.*?)^```$", text, re.S | re.M)
+    assert match, "README.md has no python block under '## Quick start'"
+    return match.group(1)
+
+
+def test_quick_start_runs_as_written(capsys):
+    code = _quick_start()
+    namespace: dict = {}
+    exec(compile(code, str(README), "exec"), namespace)
+    # it ends with a fitted, physically consistent model that predicts the training torques
+    # to well under their spread (the head's torques vary by about 1 N m)
+    rms = float(capsys.readouterr().out.split()[0])
+    tau = namespace["tau"]
+    assert rms < 0.2 * float(tau.std())
