@@ -1,9 +1,13 @@
 """torchjfa.data: joint logs from files, and their preparation for identification.
 
 `read_log` reads CSV, NPZ and Parquet logs into a `JointLog`; `prepare` resamples, filters,
-differentiates, trims and decimates it; `differentiate` is the filter and derivatives alone.
+differentiates, trims and decimates it; `differentiate` is the filter and derivatives alone;
+`coverage` says where another log's motion goes beyond the identification log's.
 """
 
+from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
+from ._coverage import Coverage as Coverage
+from ._coverage import coverage as coverage
 from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ
 from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate

@@ -115,10 +115,11 @@ def random_trajectory(
     max_harmonic: int = 8,
     range_fraction: float = 0.6,
     seed: int | None = 0,
+    min_harmonic: int = 1,
 ) -> SinusoidTrajectory:
     """A random periodic excitation inside the robot's joint ranges.
 
-    Per joint, ``n_terms`` distinct harmonics are drawn from ``1..max_harmonic``, phases
+    Per joint, ``n_terms`` distinct harmonics are drawn from ``min_harmonic..max_harmonic``, phases
     uniformly, and amplitudes ``~ U(0.5, 1) / n`` (every term contributes a similar velocity)
     scaled so that
     ``sum |a|`` is ``range_fraction`` of the half range; the offset is the range's middle.
@@ -129,6 +130,12 @@ def random_trajectory(
         base_frequency: f0, Hz (default 0.25: a 4 s period; with 8 harmonics, up to 2 Hz).
         n_terms: sinusoids per joint.
         max_harmonic: largest multiple of f0.
+        min_harmonic: smallest multiple of f0 (default 1). The joint's velocity scales as
+            ``1 / sum(1 / n)`` over its harmonics n (the position range is fixed), so a joint that
+            draws a low harmonic moves slowly: with harmonics from 1..100 (a long period) the
+            joints' peak velocities spread 20x, and a joint that barely moves in one log cannot
+            predict another that moves it fast. Keep the band narrow (``max / min`` of about 10,
+            as the default 1..8) when the period is long.
         range_fraction: fraction of the half range the motion may use, in ``(0, 1]``.
         seed: seed of the numpy Generator (an int, a SeedSequence or None).
 
@@ -139,15 +146,21 @@ def random_trajectory(
         raise ValueError(f"n_terms must be a positive int, got {n_terms!r}")
     if isinstance(max_harmonic, bool) or not isinstance(max_harmonic, int):
         raise ValueError(f"max_harmonic must be an int, got {max_harmonic!r}")
-    if max_harmonic < n_terms:
-        raise ValueError(f"max_harmonic ({max_harmonic}) must be at least n_terms ({n_terms})")
+    if isinstance(min_harmonic, bool) or not isinstance(min_harmonic, int) or min_harmonic < 1:
+        raise ValueError(f"min_harmonic must be a positive int, got {min_harmonic!r}")
+    if max_harmonic - min_harmonic + 1 < n_terms:
+        raise ValueError(
+            f"min_harmonic..max_harmonic ({min_harmonic}..{max_harmonic}) must hold at least "
+            f"n_terms ({n_terms}) harmonics"
+        )
     if not 0.0 < range_fraction <= 1.0:
         raise ValueError(f"range_fraction must lie in (0, 1], got {range_fraction}")
     rng = np.random.default_rng(seed)
     ranges = joint_ranges(model)
     n = ranges.shape[0]
     half = 0.5 * (ranges[:, 1] - ranges[:, 0])
-    harmonic = np.stack([rng.choice(max_harmonic, n_terms, replace=False) + 1 for _ in range(n)])
+    band = max_harmonic - min_harmonic + 1
+    harmonic = np.stack([rng.choice(band, n_terms, replace=False) + min_harmonic for _ in range(n)])
     weight = rng.uniform(0.5, 1.0, (n, n_terms)) / harmonic
     amplitude = weight / weight.sum(axis=1, keepdims=True) * (range_fraction * half)[:, None]
     phase = rng.uniform(0.0, 2.0 * np.pi, (n, n_terms))
