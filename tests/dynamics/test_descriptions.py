@@ -165,6 +165,21 @@ def test_a_mimic_joint_is_refused_and_the_message_says_what_to_do(tmp_path):
     assert RigidBodyModel.from_urdf(fixed_mimic).joint_names == ("j1", "f1")
 
 
+def test_mjcf_equality_constraints_are_refused_unless_inactive():
+    body = (
+        '<mujoco><worldbody><body name="a"><joint name="j1"/><geom size=".1"/>'
+        '<body name="b" pos="0 0 .2"><joint name="j2"/><geom size=".1"/></body></body>'
+        "</worldbody><equality>{}</equality></mujoco>"
+    )
+    coupled = '<joint name="couple" joint1="j2" joint2="j1" polycoef="0 2 0 0 0"/>'
+    with pytest.raises(ValueError, match="1 active equality constraint.*joint 'couple'"):
+        RigidBodyModel.from_mjcf(body.format(coupled))
+    with pytest.raises(ValueError, match="connect #0.*closed loops"):
+        RigidBodyModel.from_mjcf(body.format('<connect body1="b" anchor="0 0 0"/>'))
+    inactive = body.format('<weld body1="b" active="false"/>')
+    assert RigidBodyModel.from_mjcf(inactive).joint_names == ("j1", "j2")
+
+
 def test_fixed_joints_equal_the_same_joints_written_fixed():
     model = RigidBodyModel.from_urdf(MIMIC, fixed_joints=("f1", "f2"))
     # written out by hand: both fingers attached by fixed joints at the same origins

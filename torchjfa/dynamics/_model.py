@@ -71,7 +71,8 @@ class RigidBodyModel:
         joint_types: ``"revolute"`` (URDF revolute/continuous, MJCF hinge) or ``"prismatic"``.
         body_names: the body each joint moves.
         layout: the `ParameterLayout` of theta.
-        chain: the pytorch-kinematics chain (float32, as pytorch-kinematics builds it).
+        chain: the pytorch-kinematics chain (float32, as pytorch-kinematics builds it; for a
+            URDF from its links and joints only, without visuals).
         source_path: the description's absolute path, or None when built from a string.
         source_format: ``"urdf"`` or ``"mjcf"``.
         source_xml: the description's text.
@@ -154,8 +155,8 @@ class RigidBodyModel:
 
         Raises:
             FileNotFoundError: if the file does not exist.
-            ValueError: on free or ball joints, bodies with several joints, unnamed joints, or
-                XML that MuJoCo cannot compile.
+            ValueError: on free or ball joints, bodies with several joints, unnamed joints,
+                active equality constraints, or XML that MuJoCo cannot compile.
         """
         text, path = read_description(source, "MJCF")
         tree, chain, _ = tree_from_mjcf(text, path, gravity)

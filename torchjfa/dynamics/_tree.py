@@ -18,7 +18,12 @@ passes through ``pos``. A URDF joint without ``<axis>`` gets the URDF default ``
 
 Frames attached by fixed joints (URDF ``fixed``, MJCF bodies without joints) are lumped into
 the nearest ancestor moved by a joint; frames fixed to the root are dropped (they never move).
-Use `RigidBodyModel` rather than this module; it is the public face of the tree.
+
+A URDF's structure is checked first (`torchjfa.dynamics._urdf`: one tree, defined links, no
+loops, no mimic joints) and pytorch-kinematics builds its chain from a minimal, quiet copy;
+an MJCF with active ``<equality>`` constraints (coupled joints, closed loops) is refused. Files
+and bytes are decoded as their XML declaration says. Use `RigidBodyModel` rather than this
+module; it is the public face of the tree.
 """
 
 from __future__ import annotations
@@ -333,6 +338,18 @@ def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree,
             )
     if model.njnt == 0:
         raise ValueError("the MJCF has no joints; a model needs at least one moving joint")
+    active = [e for e in range(model.neq) if model.eq_active0[e]]
+    if active:
+        kinds = [
+            f"{mujoco.mjtEq(int(model.eq_type[e])).name[5:].lower()} "
+            + (repr(model.equality(e).name) if model.equality(e).name else f"#{e}")
+            for e in active
+        ]
+        raise ValueError(
+            f"the MJCF has {len(active)} active equality constraint(s) ({', '.join(kinds)}): "
+            "coupled joints (the MJCF form of a URDF mimic joint) and closed loops are not "
+            'supported; remove them from <equality> or mark them active="false"'
+        )
     if gravity is None:
         gravity = np.array(model.opt.gravity, dtype=np.float64)
     chain = _pk_chain_from_mjcf(text, model)
