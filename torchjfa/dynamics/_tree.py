@@ -207,9 +207,9 @@ def _floats(text: str | None, n: int, default: tuple[float, ...], what: str) -> 
     try:
         vals = [float(v) for v in text.split()]
     except ValueError as exc:
-        raise ValueError(f"cannot read {n} numbers from {what}={text!r}") from exc
+        raise ValueError(f"cannot read {n} number(s) from {what}={text!r}") from exc
     if len(vals) != n:
-        raise ValueError(f"{what} needs {n} numbers, got {text!r}")
+        raise ValueError(f"{what} needs {n} number(s), got {text!r}")
     return np.array(vals, dtype=np.float64)
 
 
@@ -229,7 +229,11 @@ def _urdf_inertial(link: ET.Element) -> np.ndarray:
     what = f"link {name!r} inertial"
     rot, com = _origin(inertial.find("origin"), what)
     mass_el = inertial.find("mass")
-    mass = 0.0 if mass_el is None else float(_floats(mass_el.get("value"), 1, (0.0,), what)[0])
+    mass = (
+        0.0
+        if mass_el is None
+        else float(_floats(mass_el.get("value"), 1, (0.0,), f"{what} mass")[0])
+    )
     if mass < 0:
         raise ValueError(f"link {name!r} has negative mass {mass}")
     ie = inertial.find("inertia")
