@@ -38,7 +38,8 @@ def path(name: str) -> str:
 
     Args:
         name: one of `available()`: ``"panda"`` (Franka Panda URDF, 7 revolute + 2 prismatic
-            finger joints, fixed joints to the hand), ``"panda_arm"`` (the same with the fingers
+            finger joints, independent: the upstream ``<mimic>`` is removed; fixed joints to
+            the hand), ``"panda_arm"`` (the same with the fingers
             fixed: a 7-DoF arm) or ``"branched_tree"`` (MJCF: a torso with
             two 2-link arms, hinge and slide joints, rotated full inertias).
 
