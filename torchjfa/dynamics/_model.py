@@ -23,7 +23,14 @@ from ..stats import Moments
 from ._codegen import RegressorKernel
 from ._parameters import ParameterLayout, friction_kinds, inertial_from_vector, inertial_vector
 from ._rnea import TreeConstants, regressor_fast, regressor_into
-from ._tree import KinematicTree, read_description, tree_from_mjcf, tree_from_urdf
+from ._tree import (
+    KinematicTree,
+    describe_source,
+    read_description,
+    tree_from_mjcf,
+    tree_from_urdf,
+)
+from ._urdf import fix_urdf_joints
 
 __all__ = ["RigidBodyModel", "BodyInertial"]
 
@@ -86,7 +93,8 @@ class RigidBodyModel:
         joint_types: ``"revolute"`` (URDF revolute/continuous, MJCF hinge) or ``"prismatic"``.
         body_names: the body each joint moves.
         layout: the `ParameterLayout` of theta.
-        chain: the pytorch-kinematics chain (float32, as pytorch-kinematics builds it).
+        chain: the pytorch-kinematics chain (float32, as pytorch-kinematics builds it; for a
+            URDF from its links and joints only, without visuals).
         source_path: the description's absolute path, or None when built from a string.
         source_format: ``"urdf"`` or ``"mjcf"``.
         source_xml: the description's text.
@@ -115,24 +123,38 @@ class RigidBodyModel:
     @classmethod
     def from_urdf(
         cls,
-        source: str | os.PathLike,
+        source: str | bytes | os.PathLike,
         *,
         friction: str | Sequence[str] = ("viscous",),
         gravity: Sequence[float] = (0.0, 0.0, -9.81),
+        fixed_joints: str | Sequence[str] = (),
     ) -> RigidBodyModel:
-        """Read a URDF file (or a string of URDF XML).
+        """Read a URDF file (or a string or bytes of URDF XML).
+
+        The description must be one fixed-base tree: one root link, each other link the child
+        of one joint, at least one revolute, continuous or prismatic joint, none of them a
+        ``<mimic>`` joint. Meshes are never read (``package://`` paths need not resolve);
+        ``<transmission>``, ``<ros2_control>``, ``<gazebo>`` and other tags are ignored.
 
         Args:
-            source: a path to a ``.urdf`` file, or the XML itself.
+            source: a path to a ``.urdf`` file, or the XML itself (``str`` or ``bytes``; an
+                ``<?xml ... encoding="..."?>`` declaration is honoured).
             friction: friction terms per joint, from ``("viscous", "coulomb", "offset")``.
             gravity: ``(3,)`` gravity in the root link's frame, m/s^2.
+            fixed_joints: joints held at q = 0 and treated as ``fixed`` (their links lumped into
+                the parent), e.g. a gripper's fingers to identify the arm alone; `source_xml`
+                is then the description with these joints turned fixed.
 
         Raises:
             FileNotFoundError: if the file does not exist.
-            ValueError: on floating/planar joints, unknown joint types or malformed XML.
+            ValueError: on malformed XML or numbers, floating/planar or unknown joint types,
+                undefined links, several root links, kinematic loops, no moving joint, mimic
+                joints, or a ``fixed_joints`` name that is no joint; the message names the file.
         """
         text, path = read_description(source, "URDF")
-        tree, chain = tree_from_urdf(text, gravity)
+        where = describe_source("URDF", path)
+        text = fix_urdf_joints(text, fixed_joints, where)
+        tree, chain = tree_from_urdf(text, gravity, where)
         return cls(
             tree, chain, friction=friction, source_xml=text, source_path=path, source_format="urdf"
         )
@@ -140,23 +162,23 @@ class RigidBodyModel:
     @classmethod
     def from_mjcf(
         cls,
-        source: str | os.PathLike,
+        source: str | bytes | os.PathLike,
         *,
         friction: str | Sequence[str] = ("viscous",),
         gravity: Sequence[float] | None = None,
     ) -> RigidBodyModel:
-        """Read an MJCF file (or a string of MJCF XML); MuJoCo compiles it.
+        """Read an MJCF file (or a string or bytes of MJCF XML); MuJoCo compiles it.
 
         Args:
-            source: a path to an MJCF ``.xml`` file, or the XML itself.
+            source: a path to an MJCF ``.xml`` file, or the XML itself (``str`` or ``bytes``).
             friction: friction terms per joint, from ``("viscous", "coulomb", "offset")``.
             gravity: ``(3,)`` m/s^2; None takes the file's ``<option gravity>`` (MuJoCo's
                 default is ``(0, 0, -9.81)``).
 
         Raises:
             FileNotFoundError: if the file does not exist.
-            ValueError: on free or ball joints, bodies with several joints, unnamed joints, or
-                XML that MuJoCo cannot compile.
+            ValueError: on free or ball joints, bodies with several joints, unnamed joints,
+                active equality constraints, or XML that MuJoCo cannot compile.
         """
         text, path = read_description(source, "MJCF")
         tree, chain, _ = tree_from_mjcf(text, path, gravity)

@@ -18,7 +18,12 @@ passes through ``pos``. A URDF joint without ``<axis>`` gets the URDF default ``
 
 Frames attached by fixed joints (URDF ``fixed``, MJCF bodies without joints) are lumped into
 the nearest ancestor moved by a joint; frames fixed to the root are dropped (they never move).
-Use `RigidBodyModel` rather than this module; it is the public face of the tree.
+
+A URDF's structure is checked first (`torchjfa.dynamics._urdf`: one tree, defined links, no
+loops, no mimic joints) and pytorch-kinematics builds its chain from a minimal, quiet copy;
+an MJCF with active ``<equality>`` constraints (coupled joints, closed loops) is refused. Files
+and bytes are decoded as their XML declaration says. Use `RigidBodyModel` rather than this
+module; it is the public face of the tree.
 """
 
 from __future__ import annotations
@@ -29,10 +34,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["KinematicTree", "tree_from_urdf", "tree_from_mjcf", "read_description"]
+from ._urdf import check_urdf, decode_xml, parse_urdf, pk_chain_from_urdf
+
+__all__ = [
+    "KinematicTree",
+    "tree_from_urdf",
+    "tree_from_mjcf",
+    "read_description",
+    "describe_source",
+]
 
 _URDF_JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
-_URDF_FLOATING = ("floating", "planar")
 
 
 @dataclass
@@ -138,23 +150,40 @@ def transform_inertial_np(pi: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> n
 
 
 # ----------------------------------------------------------------------------- reading files
-def read_description(source: str | os.PathLike, kind: str) -> tuple[str, str | None]:
-    """Return ``(xml text, path or None)`` for a file path or an XML string.
+def read_description(source: str | bytes | os.PathLike, kind: str) -> tuple[str, str | None]:
+    """Return ``(xml text, path or None)`` for a file path, an XML string or XML bytes.
+
+    Files and bytes are decoded as their byte-order mark or XML declaration says (UTF-8 if
+    neither), so a description that starts with ``<?xml version="1.0" encoding="utf-8"?>``
+    reads the same from a file, a string and bytes.
 
     Raises:
         FileNotFoundError: if ``source`` looks like a path and no such file exists.
-        TypeError: if ``source`` is neither a string nor a path.
+        TypeError: if ``source`` is neither a string, bytes nor a path.
+        ValueError: if the bytes are not in the encoding they declare.
     """
     if isinstance(source, os.PathLike):
         source = os.fspath(source)
+    if isinstance(source, (bytes, bytearray)):
+        if bytes(source).lstrip(b"\xef\xbb\xbf\xff\xfe \t\r\n").startswith((b"<", b"\x00<")):
+            return decode_xml(bytes(source), f"{kind} bytes"), None
+        source = os.fsdecode(bytes(source))
     if not isinstance(source, str):
-        raise TypeError(f"the {kind} must be a file path or an XML string, got {type(source)}")
-    if source.lstrip().startswith("<"):
+        raise TypeError(
+            f"the {kind} must be a file path, an XML string or XML bytes, got {type(source)}"
+        )
+    if source.lstrip("\ufeff \t\r\n").startswith("<"):
         return source, None
     if not os.path.isfile(source):
         raise FileNotFoundError(f"no {kind} file at {source!r}")
-    with open(source, encoding="utf-8") as fh:
-        return fh.read(), os.path.abspath(source)
+    with open(source, "rb") as fh:
+        data = fh.read()
+    return decode_xml(data, f"{kind} file {source!r}"), os.path.abspath(source)
+
+
+def describe_source(kind: str, path: str | None) -> str:
+    """How messages name a description: ``URDF file '/a/b.urdf'`` or ``URDF string``."""
+    return f"{kind} file {path!r}" if path is not None else f"{kind} string"
 
 
 @dataclass
@@ -178,9 +207,9 @@ def _floats(text: str | None, n: int, default: tuple[float, ...], what: str) -> 
     try:
         vals = [float(v) for v in text.split()]
     except ValueError as exc:
-        raise ValueError(f"cannot read {n} numbers from {what}={text!r}") from exc
+        raise ValueError(f"cannot read {n} number(s) from {what}={text!r}") from exc
     if len(vals) != n:
-        raise ValueError(f"{what} needs {n} numbers, got {text!r}")
+        raise ValueError(f"{what} needs {n} number(s), got {text!r}")
     return np.array(vals, dtype=np.float64)
 
 
@@ -197,14 +226,22 @@ def _urdf_inertial(link: ET.Element) -> np.ndarray:
     inertial = link.find("inertial")
     if inertial is None:
         return np.zeros(10)
-    rot, com = _origin(inertial.find("origin"), f"link {name!r} inertial")
+    what = f"link {name!r} inertial"
+    rot, com = _origin(inertial.find("origin"), what)
     mass_el = inertial.find("mass")
-    mass = 0.0 if mass_el is None else float(mass_el.get("value", "0"))
+    mass = (
+        0.0
+        if mass_el is None
+        else float(_floats(mass_el.get("value"), 1, (0.0,), f"{what} mass")[0])
+    )
     if mass < 0:
         raise ValueError(f"link {name!r} has negative mass {mass}")
     ie = inertial.find("inertia")
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-    v = {k: 0.0 if ie is None else float(ie.get(k, "0")) for k in keys}
+    v = {
+        k: 0.0 if ie is None else float(_floats(ie.get(k), 1, (0.0,), f"{what} inertia {k}")[0])
+        for k in keys
+    }
     inertia = np.array(
         [
             [v["ixx"], v["ixy"], v["ixz"]],
@@ -219,41 +256,25 @@ def _pk_children(frame) -> list:
     return list(frame.children)
 
 
-def tree_from_urdf(text: str, gravity) -> tuple[KinematicTree, object]:
-    """Parse URDF text into a `KinematicTree` and the pytorch-kinematics chain."""
-    import pytorch_kinematics as pk
+def tree_from_urdf(text: str, gravity, where: str = "URDF string") -> tuple[KinematicTree, object]:
+    """Parse URDF text into a `KinematicTree` and the pytorch-kinematics chain.
 
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise ValueError(f"the URDF is not valid XML: {exc}") from exc
-    if root.tag != "robot":
-        raise ValueError(f"a URDF's root element must be <robot>, got <{root.tag}>")
-    links = {link.get("name"): link for link in root.findall("link")}
-    joints = {}
-    for j in root.findall("joint"):
-        name, jtype = j.get("name"), j.get("type")
-        if jtype in _URDF_FLOATING:
-            raise ValueError(
-                f"joint {name!r} is {jtype!r}: floating and planar bases are not supported; "
-                "use a fixed-base description (the root link is then fixed to the world)"
-            )
-        if jtype not in (*_URDF_JOINT_TYPES, "fixed"):
-            raise ValueError(
-                f"joint {name!r} has unknown type {jtype!r}; supported: revolute, continuous, "
-                "prismatic, fixed"
-            )
-        joints[name] = j
-    if not joints:
-        raise ValueError("the URDF has no joints; a model needs at least one moving joint")
-    chain = pk.build_chain_from_urdf(text)
+    Args:
+        text: the URDF (an XML declaration is fine).
+        gravity: ``(3,)`` m/s^2 in the root link's frame.
+        where: the description's name in error messages (`describe_source`).
+
+    Raises:
+        ValueError: for anything `check_urdf` refuses, malformed XML or numbers.
+    """
+    root = parse_urdf(text, where)
+    links, joints = check_urdf(root, where)
+    chain = pk_chain_from_urdf(links, joints, where)
 
     frames: list[_Frame] = []
 
     def visit(pk_frame, parent: int) -> None:
         link_name = pk_frame.link.name
-        if link_name not in links:
-            raise ValueError(f"link {link_name!r} is used by a joint but not defined")
         if parent < 0:
             rec = _Frame(link_name, -1, np.eye(3), np.zeros(3))
         else:
@@ -283,7 +304,10 @@ def tree_from_urdf(text: str, gravity) -> tuple[KinematicTree, object]:
         for child in _pk_children(pk_frame):
             visit(child, me)
 
-    visit(chain._root, -1)
+    try:
+        visit(chain._root, -1)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
     return _lump(frames, chain, gravity), chain
 
 
@@ -318,6 +342,18 @@ def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree,
             )
     if model.njnt == 0:
         raise ValueError("the MJCF has no joints; a model needs at least one moving joint")
+    active = [e for e in range(model.neq) if model.eq_active0[e]]
+    if active:
+        kinds = [
+            f"{mujoco.mjtEq(int(model.eq_type[e])).name[5:].lower()} "
+            + (repr(model.equality(e).name) if model.equality(e).name else f"#{e}")
+            for e in active
+        ]
+        raise ValueError(
+            f"the MJCF has {len(active)} active equality constraint(s) ({', '.join(kinds)}): "
+            "coupled joints (the MJCF form of a URDF mimic joint) and closed loops are not "
+            'supported; remove them from <equality> or mark them active="false"'
+        )
     if gravity is None:
         gravity = np.array(model.opt.gravity, dtype=np.float64)
     chain = _pk_chain_from_mjcf(text, model)
