@@ -1,7 +1,8 @@
 """A small end-to-end demo: identify the 7-DoF Franka Panda arm from noisy joint data.
 
-    python scripts/demo.py           # about 10 s (after the first build of the EM loop)
-    python scripts/demo.py --smoke   # a few seconds (CI runs this)
+    python scripts/demo.py             # about 10 s (after the first build of the EM loop)
+    python scripts/demo.py --seeds 0-4 # five seeds: each method's mean, spread and worst case
+    python scripts/demo.py --smoke     # a few seconds (CI runs this)
 
 The robot description ships with the package (`torchjfa.robots.path("panda_arm")`). The "robot" is
 the model itself with true parameters = the URDF's values plus viscous friction: it moves in a
@@ -23,6 +24,7 @@ import math
 import time
 
 import torch
+from _seeds import parse_seeds, seeds_help, summary_lines
 
 import torchjfa
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
@@ -146,6 +148,23 @@ if __name__ == "__main__":
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--smoke", action="store_true", help="tiny sizes, a few seconds")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", default="0", help=seeds_help("0"))
     args = parser.parse_args()
-    run(smoke=args.smoke, seed=args.seed)
+    seeds = parse_seeds(args.seeds)
+    runs = {}
+    for seed in seeds:
+        if len(seeds) > 1:
+            print(f"\n=== seed {seed}")
+        runs[seed] = {r["method"]: r for r in run(smoke=args.smoke, seed=seed)["rows"]}
+    if len(seeds) > 1:
+        print("\nprojected nMSE (held-out noiseless torques) over the seeds:")
+        methods = list(runs[seeds[0]])
+        table = {m: {s: runs[s][m]["nmse_projected"] for s in seeds} for m in methods}
+        for line in summary_lines(table):
+            print(" ", line)
+        base = "OLS"
+        for m in methods[1:]:
+            wins = [
+                s for s in seeds if runs[s][m]["nmse_projected"] < runs[s][base]["nmse_projected"]
+            ]
+            print(f"  {m} below {base} on {len(wins)} of {len(seeds)} seeds")

@@ -3,6 +3,7 @@
     python scripts/reproduce_tables.py                  # both robots, 500,000 samples each
     python scripts/reproduce_tables.py --smoke          # both robots end to end in tiny sizes
     python scripts/reproduce_tables.py --n-samples 100000 --robots head   # a smaller run
+    python scripts/reproduce_tables.py --n-samples 100000 --seeds 0-4    # five seeds, summarised
 
 Prints, per robot, the table in the paper's layout (RMS position / velocity / feedback command
 of computed-torque control on a held-out trajectory, FAILURE where it fails, true parameters as
@@ -17,6 +18,8 @@ import csv
 import json
 import time
 from pathlib import Path
+
+from _seeds import parse_seeds, seeds_help, summary_lines
 
 from torchjfa.experiments import robots as exp
 
@@ -86,6 +89,35 @@ def run(
     return {"results": results, "goal": goal, "wall_s": wall}
 
 
+def summarize_seeds(runs: dict[int, dict]) -> list[str]:
+    """Per robot and method over the seeds: nMSE (clean) and RMS feedback (successes only),
+    the failures, and the goal's reduction; the lines printed."""
+    lines = []
+    seeds = list(runs)
+    for robot in runs[seeds[0]]["results"]:
+        per = {s: {r["method"]: r for r in runs[s]["results"][robot].rows} for s in seeds}
+        lines.append(f"{robot}, {len(seeds)} seeds {seeds}:")
+        for method, row in per[seeds[0]].items():
+            nm = {s: per[s][method]["nmse_clean"] for s in seeds}
+            ok = {s: per[s][method]["rms_feedback"] for s in seeds if per[s][method]["success"]}
+            failed = [s for s in seeds if per[s][method]["success"] is False]
+            label = row["label"]
+            lines.append("  " + summary_lines({f"{label}, nMSE clean": nm})[0])
+            if ok:
+                lines.append("  " + summary_lines({f"{label}, RMS feedback (N m)": ok})[0])
+            if failed:
+                lines.append(f"  {label}: FAILURE on seeds {failed}")
+        red = {s: runs[s]["goal"]["robots"][robot]["reduction"] for s in seeds}
+        met = [s for s in seeds if runs[s]["goal"]["robots"][robot]["met"]]
+        lines.append(
+            f"  goal (best Bayesian >= 10% below ridge + GD): met on seeds {met}; reductions "
+            + ", ".join(f"{100 * red[s]:+.1f}% (seed {s})" for s in seeds)
+        )
+    for line in lines:
+        print(line)
+    return lines
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -94,7 +126,7 @@ if __name__ == "__main__":
     parser.add_argument("--robots", nargs="+", default=["head", "arm"], choices=["head", "arm"])
     parser.add_argument("--n-samples", type=int, default=None, help="training samples per robot")
     parser.add_argument("--test-duration", type=float, default=None, help="control run, s")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", default="0", help=seeds_help("0"))
     parser.add_argument(
         "--weighting",
         choices=["none", "residual"],
@@ -104,13 +136,22 @@ if __name__ == "__main__":
     parser.add_argument("--out", type=Path, default=Path("results/robots"))
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args()
-    run(
-        robots=tuple(args.robots),
-        smoke=args.smoke,
-        n_samples=args.n_samples,
-        test_duration=args.test_duration,
-        seed=args.seed,
-        out=args.out,
-        weighting=args.weighting,
-        progress=not args.quiet,
-    )
+    seeds = parse_seeds(args.seeds)
+    runs = {}
+    for seed in seeds:
+        if len(seeds) > 1:
+            print(f"\n=== seed {seed}", flush=True)
+        runs[seed] = run(
+            robots=tuple(args.robots),
+            smoke=args.smoke,
+            n_samples=args.n_samples,
+            test_duration=args.test_duration,
+            seed=seed,
+            out=args.out if len(seeds) == 1 else args.out / f"seed_{seed}",
+            weighting=args.weighting,
+            progress=not args.quiet,
+        )
+    if len(seeds) > 1:
+        print("\nover the seeds:")
+        lines = summarize_seeds(runs)
+        (args.out / "seeds.txt").write_text("\n".join(lines) + "\n")
