@@ -2,9 +2,12 @@
 
 `read_log` reads CSV, NPZ and Parquet logs into a `JointLog`; `prepare` resamples, filters,
 differentiates, trims and decimates it; `differentiate` is the filter and derivatives alone;
-`coverage` says where another log's motion goes beyond the identification log's.
+`check_log` finds logs that cannot identify anything (gaps, no motion, degrees, scrambled
+columns); `coverage` says where another log's motion goes beyond the identification log's.
 """
 
+from ._checks import LogProblem as LogProblem
+from ._checks import check_log as check_log
 from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
 from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage
