@@ -26,7 +26,7 @@ from .sim import ROBOTS
 __all__ = ["main", "ESTIMATORS"]
 
 ESTIMATORS = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
-_FRICTION = ("viscous", "coulomb", "offset")
+_FRICTION = ("viscous", "coulomb", "offset", "armature")  # joint terms
 _SIM_ROBOTS = tuple(ROBOTS)  # the simulated robots
 
 

@@ -220,3 +220,38 @@ def test_massless_body_where_a_mass_is_needed():
         RigidBodyModel.from_urdf(PANDA).write_mjcf(
             RigidBodyModel.from_urdf(PANDA).nominal_theta, "x"
         )
+
+
+def test_write_mjcf_writes_the_joint_terms_and_simulates_them(tmp_path):
+    import mujoco
+
+    model = RigidBodyModel.from_mjcf(TREE, friction=("viscous", "coulomb", "armature"))
+    g = torch.Generator().manual_seed(3)
+    theta = model.nominal_theta.clone()
+    rows = {k: [model.layout.index(j, k) for j in range(model.n_dof)] for k in ("fv", "fc", "ia")}
+    for idx in rows.values():
+        theta[idx] = 0.05 + torch.rand(len(idx), generator=g, dtype=torch.float64)
+    out = tmp_path / "robot.xml"
+    model.write_mjcf(theta, out)
+    m = mujoco.MjModel.from_xml_path(str(out))
+    jid = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
+    dof = m.jnt_dofadr[jid]
+    np.testing.assert_array_equal(m.dof_armature[dof], theta[rows["ia"]].numpy())
+    np.testing.assert_array_equal(m.dof_damping[dof], theta[rows["fv"]].numpy())
+    np.testing.assert_array_equal(m.dof_frictionloss[dof], theta[rows["fc"]].numpy())
+    # the written robot's inverse dynamics (dry friction off: a constraint, not a force law)
+    # is the regressor's with theta's armature and viscous terms
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)
+    d = mujoco.MjData(m)
+    q, qd, qdd = random_state(model.n_dof, (4,), seed=9)
+    Y = model.regressor(q, qd, qdd)
+    no_dry = theta.clone()
+    no_dry[rows["fc"]] = 0.0
+    for i in range(4):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q[i].numpy(), qd[i].numpy(), qdd[i].numpy()
+        mujoco.mj_inverse(m, d)
+        np.testing.assert_allclose(d.qfrc_inverse, (Y[i] @ no_dry).numpy(), rtol=1e-9, atol=1e-9)
+    bad = theta.clone()
+    bad[rows["ia"][0]] = -0.1
+    with pytest.raises(ValueError, match="negative armature"):
+        model.write_mjcf(bad, tmp_path / "bad.xml")

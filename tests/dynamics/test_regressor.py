@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import mujoco
 import numpy as np
 import pytest
@@ -218,3 +220,38 @@ def test_out_buffer_is_filled_and_bad_buffers_raise():
             qdd,
             out=torch.empty_like(expected).transpose(-1, -2).contiguous().transpose(-1, -2),
         )
+
+
+@pytest.mark.parametrize("name", list(ROBOTS))
+def test_armature_and_damping_terms_equal_mj_inverse(name):
+    # MuJoCo's armature adds a_j qdd_j and its damping b_j qd_j to joint j's inverse dynamics:
+    # theta's "ia" and "fv" entries, in the torch autograd, torch fast and compiled paths
+    model = _model(name, friction=("viscous", "armature"))
+    assert model.friction == ("viscous", "armature") and model.n_params == model.n_dof * 12
+    m = _mj(name)
+    rng = np.random.default_rng(4)
+    armature, damping = rng.uniform(0.01, 0.2, model.n_dof), rng.uniform(0.1, 2.0, model.n_dof)
+    m.dof_armature[:] = armature
+    m.dof_damping[:] = damping
+    m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_DAMPER)
+    theta = model.nominal_theta.clone()
+    for j in range(model.n_dof):
+        theta[model.layout.index(j, "ia")] = float(armature[j])
+        theta[model.layout.index(j, "fv")] = float(damping[j])
+    q, qd, qdd = random_state(model.n_dof, (9,), seed=21)
+    expected = mujoco_inverse(m, q.numpy(), qd.numpy(), qdd.numpy())
+    scale = max(1.0, float(np.abs(expected).max()))
+    paths = {
+        "torch": model.regressor(q, qd, qdd, compiled=False),
+        "autograd": model.regressor(q.clone().requires_grad_(True), qd, qdd).detach(),
+    }
+    if shutil.which("g++") or shutil.which("c++") or shutil.which("clang++"):
+        paths["compiled"] = model.regressor(q, qd, qdd, compiled=True)
+    for path, Y in paths.items():
+        np.testing.assert_allclose(
+            (Y @ theta).numpy(), expected, rtol=1e-9, atol=1e-9 * scale, err_msg=path
+        )
+        for j in range(model.n_dof):  # the armature column is joint j's acceleration alone
+            col = model.layout.index(j, "ia")
+            np.testing.assert_array_equal(Y[:, j, col].numpy(), qdd[:, j].numpy())
+            assert torch.all(Y[:, [k for k in range(model.n_dof) if k != j], col] == 0)

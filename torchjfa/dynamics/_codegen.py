@@ -274,6 +274,7 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             entries[(k, k * per + 10 + f)] = {
                 "viscous": ("qd", k),
                 "coulomb": ("sign", k),
+                "armature": ("qdd", k),
                 "offset": 1.0,
             }[kind]
     return entries
@@ -298,9 +299,9 @@ def kernel_source(tree: KinematicTree, friction: tuple[str, ...], dtype: torch.d
         idx = j * n * per + col
         if isinstance(val, _Sym):
             stores.append(f"ST({idx}, {val.name});")
-        elif isinstance(val, tuple):  # friction terms read the velocity directly
-            src = f"qd[l * {n} + {val[1]}]"
-            expr = src if val[0] == "qd" else f"(T)(({src} > 0) - ({src} < 0))"
+        elif isinstance(val, tuple):  # joint terms read the velocity or acceleration directly
+            src = f"{'qdd' if val[0] == 'qdd' else 'qd'}[l * {n} + {val[1]}]"
+            expr = f"(T)(({src} > 0) - ({src} < 0))" if val[0] == "sign" else src
             stores.append(f"for (int l = 0; l < W; ++l) tile[l][{idx}] = {expr};")
         elif val != 0.0:
             consts.append(f"for (int l = 0; l < W; ++l) tile[l][{idx}] = {em.lit(val)};")

@@ -5,9 +5,11 @@ moves, in Pinocchio's order, about the body frame's origin and expressed in the 
 
     [m, m*cx, m*cy, m*cz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
 
-then that joint's friction terms, in the order of `FRICTION_KINDS` that are selected (viscous
-by default, the seed paper's 11th parameter). Units: kg, kg m, kg m^2, N m s/rad (or N s/m for
-prismatic joints), N m.
+then that joint's joint terms ("friction" in the code's names), in the order of `FRICTION_KINDS`
+that are selected: viscous friction ``fv qd`` (the default, the seed paper's 11th parameter),
+Coulomb friction ``fc sign(qd)``, a constant offset ``fo`` and the armature ``ia qdd`` (the
+motor's reflected rotor inertia, MuJoCo's ``armature``). Units: kg, kg m, kg m^2, then N m s/rad,
+N m, N m and kg m^2 (N s/m, N, N and kg for prismatic joints).
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ __all__ = [
 ]
 
 INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
-FRICTION_KINDS = ("viscous", "coulomb", "offset")
-_FRICTION_SHORT = {"viscous": "fv", "coulomb": "fc", "offset": "fo"}
+FRICTION_KINDS = ("viscous", "coulomb", "offset", "armature")
+_FRICTION_SHORT = {"viscous": "fv", "coulomb": "fc", "offset": "fo", "armature": "ia"}
 
 # index pairs of the 6 inertia entries in Pinocchio's order: xx, xy, yy, xz, yz, zz
 _SIX = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
@@ -43,7 +45,8 @@ class ParameterLayout:
 
     Args:
         joint_names: the actuated joints in model order.
-        friction: friction terms per joint, a subset of ``FRICTION_KINDS`` (kept in that order).
+        friction: joint terms per joint, a subset of ``FRICTION_KINDS`` (kept in that order):
+            viscous, Coulomb and offset friction, armature.
     """
 
     joint_names: tuple[str, ...]

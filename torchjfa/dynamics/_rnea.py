@@ -226,6 +226,8 @@ def regressor_into(
             vals = qd
         elif kind == "coulomb":
             vals = torch.sign(qd)
+        elif kind == "armature":
+            vals = qdd
         else:
             vals = torch.ones_like(qd)
         out.view(B, n, n, per).diagonal(0, 1, 2)[:, col] = vals
@@ -473,6 +475,8 @@ def _fast_chunk(ws, q, qd, qdd, plan: _Plan, c: TreeConstants) -> None:
             Yt.index_copy_(0, rows, ws["qd"])
         elif kind == "coulomb":
             Yt.index_copy_(0, rows, torch.sign(ws["qd"]))
+        elif kind == "armature":
+            Yt.index_copy_(0, rows, ws["qdd"])
         else:
             Yt.index_fill_(0, rows, 1.0)
 

@@ -3,9 +3,12 @@
 Each joint's body gets the lumped inertial of theta: mass, centre of mass (the inertial frame's
 origin, not rotated) and the full inertia about the centre of mass. The frames that were lumped
 into it (attached by fixed joints) lose theirs: URDF links drop their ``<inertial>``, MJCF bodies
-get an explicit zero mass. Reloading the written file gives the same theta (inertial part;
-friction is not part of a URDF/MJCF inertial and is not written). Everything else in the file is
-kept. Use `RigidBodyModel.write_urdf` / `write_mjcf` rather than these functions.
+get an explicit zero mass. Reloading the written file gives the same theta (inertial part).
+Joint terms: an MJCF gets each joint's armature (``armature``), viscous friction (``damping``)
+and Coulomb friction (``frictionloss``, MuJoCo's dry friction) where theta has them, so the file
+simulates the identified robot; an offset has no MJCF field, and a URDF has none for any joint
+term (they stay in theta, `torchjfa.io` keeps them). Everything else in the file is kept. Use
+`RigidBodyModel.write_urdf` / `write_mjcf` rather than these functions.
 """
 
 from __future__ import annotations
@@ -75,6 +78,35 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
         fh.write("\n")
 
 
+_MJCF_JOINT_FIELDS = {"armature": "armature", "viscous": "damping", "coulomb": "frictionloss"}
+
+
+def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
+    """Set the MJCF joint attributes of theta's joint terms (armature, damping, frictionloss)."""
+    kinds = [k for k in model.friction if k in _MJCF_JOINT_FIELDS]
+    if not kinds:
+        return
+    _, terms = model.layout.split(theta.detach().to(torch.float64).cpu())
+    joints: dict[str, list[ET.Element]] = {}
+    for el in root.iter("joint"):
+        joints.setdefault(el.get("name", ""), []).append(el)
+    for j, name in enumerate(model.joint_names):
+        found = joints.get(name, [])
+        if len(found) != 1:
+            raise ValueError(
+                f"joint {name!r} is not named uniquely in the main MJCF file; cannot write its "
+                f"{', '.join(kinds)}"
+            )
+        for kind in kinds:
+            value = float(terms[j, model.friction.index(kind)])
+            if value < 0:
+                raise ValueError(
+                    f"joint {name!r} has a negative {kind} ({value:.4g}); project theta onto "
+                    "physically consistent parameters (torchjfa.physical) before writing it"
+                )
+            found[0].set(_MJCF_JOINT_FIELDS[kind], _fmt(value))
+
+
 def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     """Write ``model.source_xml`` with theta's inertials to ``path`` (MJCF models only).
 
@@ -123,6 +155,7 @@ def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
         )
         for name in model.lumped_bodies[b.joint]:
             set_inertial(body_el(name), pos="0 0 0", mass="0", diaginertia="0 0 0")
+    _write_joint_terms(model, theta, root)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(ET.tostring(root, encoding="unicode"))
         fh.write("\n")
