@@ -125,6 +125,7 @@ class _JFABase(LinearEstimator):
         dev = total.xtx.device
         noise = self._input_noise(d, dev)
         active = self._active_columns(total)
+        self._warn_if_underdetermined(total, active)
         m = total.select(active)
         sxx, sxy, syy, n = self._centered(m)
         nf = float(n)
