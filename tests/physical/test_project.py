@@ -336,7 +336,7 @@ def test_a_stall_is_not_reported_as_convergence():
     layout = make_layout(4)
     theta_hat = 1e6 * _inconsistent(layout, g)
     problem = Problem(theta_hat, _metric(layout, g, rank_deficiency=0), 1e-8, None, 0.0)
-    _, n_iter, _, converged = minimise(
+    _, _, _, converged = minimise(
         VirtualParameters(layout), problem, max_iter=1000, tol=1e-5, verbose=False
     )
     assert not converged
