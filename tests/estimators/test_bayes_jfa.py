@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from torchjfa.estimators import BayesianJFA
+from torchjfa.estimators import JFA, BayesianJFA
 from torchjfa.stats import Moments
 
 F64 = torch.float64
@@ -392,3 +392,64 @@ def test_squarem_packs_every_free_row(bayes, fixed_x):
     # variances travel as their bit patterns, rounded to float64: 1e-13 relative
     assert psy == pytest.approx(0.3, rel=1e-13)
     np.testing.assert_allclose(out, st, rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("cls", [BayesianJFA, JFA])
+def test_input_noise_at_or_above_a_columns_variance_is_refused(cls):
+    """Noise >= var(x_m) leaves no signal in column m (psi_x + w_x^2 = var): the loop clamped
+    it and returned [0.84, -3.20, 0.57, -0.02, 3.85, 0.03] for the truth [1, -2, 0.5, 0, 3, 0]."""
+    g = torch.Generator().manual_seed(0)
+    t = torch.randn(3000, 6, generator=g, dtype=F64)
+    X = t + 0.3 * torch.randn(3000, 6, generator=g, dtype=F64)
+    y = t @ torch.tensor([1, -2, 0.5, 0, 3, 0], dtype=F64)
+    noise = torch.full((6,), 0.09, dtype=F64)
+    noise[1] = float(X[:, 1].var(correction=0))  # exactly the variance: refused too
+    noise[4] = 2.0  # ~2x the variance
+    with pytest.raises(ValueError, match=r"column 1: noise .* >= variance .*column 4: noise 2 "):
+        cls(input_noise=noise).fit(X, y)
+    noise[[1, 4]] = 0.09  # the true noise: fine
+    est = cls(input_noise=noise).fit(X, y)
+    # standard error of each slope ~ sqrt(0.09 |b|^2 / 3000) = 0.02 (input noise only): 5 of them
+    assert float((est.coef_ - torch.tensor([1, -2, 0.5, 0, 3, 0], dtype=F64)).abs().max()) < 0.1
+    # a column of round-off (a structurally zero regressor column, 1e-17) whose noise estimate,
+    # round-off too, exceeds its variance is not refused: it carries nothing either way
+    X = torch.cat([X, 1e-17 * torch.randn(3000, 1, generator=g, dtype=F64)], 1)
+    noise = torch.cat([noise, torch.tensor([2e-34], dtype=F64)])
+    est = cls(input_noise=noise).fit(X, y)
+    assert float((est.coef_[:6] - torch.tensor([1, -2, 0.5, 0, 3, 0], dtype=F64)).abs().max()) < 0.1
+
+
+def test_irrelevant_column_correlated_with_a_noisy_one_is_amplified_by_the_unidentified_split():
+    """Why the default BayesianJFA() gives a large coef_ to an irrelevant column.
+
+    Column 3 is irrelevant (truth 0) but correlated (0.5) with column 4, and every input is
+    noisy: E[y | x] puts a small weight on x_3 (it carries information about t_4 that the noisy
+    x_4 lost), which OLS and the noisy-input predictor share. Eq. (4) then divides that weight
+    by the reliability 1 - psi_x / var(x) that the model attributes to the column; without
+    input_noise this split is not identified (docs/bayesian-jfa.md), and the shared relevance
+    prior, shrinking w_x of a column that matters little, puts ~90% of column 3's variance
+    into psi_x (the truth: 8%): its coef_ comes out ~10x the predictor's. Given the input
+    noise, the split is identified and the amplification is gone.
+    """
+    g = torch.Generator().manual_seed(1)
+    n = 3000
+    t = torch.randn(n, 6, generator=g, dtype=F64)
+    t[:, 3] = 0.5 * t[:, 4] + math.sqrt(0.75) * t[:, 3]
+    X = t + 0.3 * torch.randn(n, 6, generator=g, dtype=F64)  # noise variance 0.09, SNR ~11
+    y = t @ torch.tensor([1, -2, 0.5, 0, 3, 1.5], dtype=F64) + 0.5 * torch.randn(
+        n, generator=g, dtype=F64
+    )
+    ols = torch.linalg.lstsq(torch.cat([X, torch.ones(n, 1, dtype=F64)], 1), y[:, None]).solution
+    est = BayesianJFA().fit(X, y)
+    var = X.var(0, correction=0)
+    k = est.coef_noisy_
+    assert abs(float(ols[3])) < 0.2 and abs(float(k[3] - ols[3])) < 0.05  # the proxy weight
+    reliability = 1 - est.noise_x_ / var
+    assert float(reliability[3]) < 0.2 and bool((reliability[[0, 1, 4, 5]] > 0.8).all())
+    assert abs(float(est.coef_[3])) > 5 * abs(float(k[3]))  # ~1.4, where OLS says 0.14
+    # the mechanism: coef_ is the predictor divided by the reliability, column by column (to
+    # 1%: <w_z><w_x>/<w_x^2> and k differ by the posterior spreads and the cross terms)
+    torch.testing.assert_close(est.coef_, k / reliability, rtol=1e-2, atol=0)
+    informed = BayesianJFA(input_noise=torch.full((6,), 0.09, dtype=F64)).fit(X, y)
+    assert abs(float(informed.coef_[3])) < 1.5 * abs(float(informed.coef_noisy_[3]))
+    assert abs(float(informed.coef_[3])) < 0.2

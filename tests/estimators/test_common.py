@@ -9,8 +9,18 @@ import math
 import pytest
 import torch
 
-from torchjfa import Moments
-from torchjfa.estimators import OLS, PLS, TLS, Lasso, LinearEstimator, Ridge, Stepwise
+from torchjfa import Moments, kfold_moments
+from torchjfa.estimators import (
+    JFA,
+    OLS,
+    PLS,
+    TLS,
+    BayesianJFA,
+    Lasso,
+    LinearEstimator,
+    Ridge,
+    Stepwise,
+)
 
 FACTORIES = {
     "OLS": lambda **kw: OLS(**kw),
@@ -213,3 +223,40 @@ def test_repr_round_trips(name):
     again = eval(repr(est), namespace)  # noqa: S307 - our own repr
     assert repr(again) == repr(est)
     assert type(again) is type(est)
+
+
+ALL = {
+    **FACTORIES,
+    "JFA": lambda **kw: JFA(max_iter=200, **kw),
+    "BayesianJFA": lambda **kw: BayesianJFA(max_iter=200, **kw),
+}
+
+
+@pytest.mark.parametrize("which", sorted(ALL))
+@pytest.mark.parametrize("fit_intercept", [True, False])
+def test_fewer_rows_than_parameters_warns_once(which, fit_intercept):
+    """4 rows for 5 columns (+ intercept): the moments have rank <= 4, and every estimator
+    returns one of infinitely many equally good answers (minimum norm, or everything shrunk:
+    Bayesian JFA put ~1e-179 everywhere); it must say so, once per fit, naming the counts."""
+    X, y = _data(n=4)
+    est = ALL[which](fit_intercept=fit_intercept)
+    n_params = 5 + int(fit_intercept)
+    with pytest.warns(UserWarning, match=rf"4 rows for {n_params} parameters") as record:
+        est.fit(X, y)
+    assert len([w for w in record if "rows for" in str(w.message)]) == 1
+    assert record[0].filename == __file__  # points at the caller's fit, not the internals
+    # from moments too, and not with enough rows
+    with pytest.warns(UserWarning, match="cannot determine"):
+        ALL[which](fit_intercept=fit_intercept).fit_moments(
+            Moments.from_data(X, y) if "CV" not in which else kfold_moments(X, y, 2)
+        )
+    X, y = _data(n=n_params)
+    ALL[which](fit_intercept=fit_intercept).fit(X, y)  # no warning (filterwarnings = error)
+
+
+@pytest.mark.parametrize("which", ["PLSCV", "LassoCV"])
+def test_cross_validation_on_one_row_says_so(which):
+    X, y = _data(n=1)
+    parameter = "n_components" if which == "PLSCV" else "alpha"
+    with pytest.raises(ValueError, match=rf"chooses {parameter} by 4-fold cross-valid.*2 rows"):
+        FACTORIES[which](fit_intercept=False).fit(X, y)

@@ -94,7 +94,7 @@ def test_matches_per_sample_reference_and_exact_likelihood():
     torch.testing.assert_close(est.weights_x_, wx, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(est.noise_z_, psz, rtol=1e-10, atol=1e-12)
     torch.testing.assert_close(est.noise_x_, psx, rtol=1e-10, atol=1e-12)
-    assert float(est.noise_y_) == pytest.approx(psy, rel=1e-10)
+    assert float(est.noise_y_) == pytest.approx(float(psy), rel=1e-10)
     # for maximum likelihood the recorded bound is the exact log-likelihood at the state
     ll = _loglik(X, y, wz, wx, psz, psx, psy, X.mean(0), y.mean())
     assert float(est.lower_bound_[-1]) == pytest.approx(ll, rel=1e-10)

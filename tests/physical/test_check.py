@@ -4,6 +4,7 @@ from point masses (so their true inertial parameters are known independently of 
 import numpy as np
 import pytest
 import torch
+from _bodies import VANISHING_MASSES, make_layout, vanishing_mass_theta
 
 from torchjfa.dynamics import ParameterLayout
 from torchjfa.physical import check
@@ -172,3 +173,37 @@ def test_bad_input():
         check(torch.zeros(11), LAYOUT1, tol=-1.0)
     with pytest.raises(TypeError, match="ParameterLayout"):
         check(torch.zeros(11), object())
+
+
+@pytest.mark.parametrize("m", VANISHING_MASSES)
+def test_vanishing_mass_with_a_first_moment_gets_a_verdict(m):
+    # h / m overflows (1e180 m and more): the check works with m I_c = m I_o - (|h|^2 - h h^T)
+    layout = make_layout(3)
+    theta = vanishing_mass_theta(layout, m, torch.Generator().manual_seed(0))
+    report = check(theta, layout)
+    assert report.body_ok.tolist() == [True, False, True]
+    assert not bool(report.inertia_ok[1]) and not bool(report.pseudo_inertia_ok[1])
+    assert bool(torch.isfinite(report.pseudo_inertia_min_eig).all())
+    if m > 0:
+        # I_c = I_o - (|h|^2 1 - h h^T) / m: principal moments -|h|^2 / m (twice) and ~0,
+        # |h|^2 = 0.14, finite however large
+        expected = -0.14 / m
+        torch.testing.assert_close(
+            report.principal_moments[1, :2],
+            torch.tensor([expected, expected], dtype=torch.float64),
+            rtol=1e-6,
+            atol=0,
+        )
+    else:
+        assert bool(torch.isnan(report.principal_moments[1]).all())  # no centre of mass
+    assert "physically consistent: no (1 of 3 bodies fail" in str(report)
+
+
+def test_huge_bodies_are_checked_like_their_scaled_copies():
+    layout = make_layout(3)
+    theta = vanishing_mass_theta(layout, 1.0, torch.Generator().manual_seed(1))
+    ref = check(theta, layout)
+    for s in (1e-300, 1e300):
+        report = check(s * theta, layout)
+        assert report.body_ok.tolist() == ref.body_ok.tolist()
+        torch.testing.assert_close(report.pseudo_inertia_min_eig / s, ref.pseudo_inertia_min_eig)

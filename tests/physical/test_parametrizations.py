@@ -2,7 +2,7 @@ import math
 
 import pytest
 import torch
-from _bodies import cloud_bodies, make_layout
+from _bodies import VANISHING_MASSES, cloud_bodies, make_layout, vanishing_mass_theta
 
 from torchjfa.dynamics import inertial_vector, pseudo_inertia
 from torchjfa.physical import LogCholeskyParameters, VirtualParameters, check
@@ -125,7 +125,7 @@ def test_from_theta_repairs_inconsistent_parameters(cls):
     layout = make_layout(6, ("viscous", "coulomb", "offset"))
     theta = torch.randn(layout.n_params, generator=g, dtype=torch.float64)
     assert not check(theta, layout).weakly_ok
-    out = cls.from_theta(theta, layout)()
+    out = cls.from_theta(theta, layout)().detach()
     report = check(out, layout)
     assert report.weakly_ok, str(report)
     if cls is LogCholeskyParameters:
@@ -176,3 +176,37 @@ def test_bad_input_raises(cls):
         cls.from_theta(torch.zeros(5), layout)
     with pytest.raises(ValueError, match="NaN"):
         cls.from_theta(torch.full((22,), float("nan")), layout)
+
+
+@pytest.mark.parametrize("cls", PARAMETRIZATIONS)
+@pytest.mark.parametrize("m", VANISHING_MASSES)
+def test_from_theta_of_a_vanishing_mass_is_a_finite_consistent_start(cls, m):
+    layout = make_layout(3)
+    theta = vanishing_mass_theta(layout, m, torch.Generator().manual_seed(2))
+    module = cls.from_theta(theta, layout)
+    out = module().detach()
+    assert bool(torch.isfinite(module.phi).all()) and bool(torch.isfinite(out).all())
+    report = check(out, layout)
+    assert report.weakly_ok, str(report)
+    if cls is LogCholeskyParameters:
+        assert report.ok, str(report)
+    # the consistent bodies stay put
+    torch.testing.assert_close(out[:10], theta[:10], rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(out[22:], theta[22:], rtol=1e-10, atol=1e-12)
+    if cls is VirtualParameters:
+        # the mass is raised to 4 |h|^2 / tr(I_o), which keeps h (the centre of mass at
+        # 1/sqrt(2) of the radius sqrt(tr(I_o) / (2 m)) beyond which tr(I_c) < 0)
+        trace = float(theta[11 + 4] + theta[11 + 6] + theta[11 + 9])
+        assert float(out[11]) == pytest.approx(4 * 0.14 / trace, rel=1e-12)
+        torch.testing.assert_close(out[12:15], theta[12:15], rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("cls", PARAMETRIZATIONS)
+@pytest.mark.parametrize("scale", [1e-300, 1e300])
+def test_from_theta_is_exact_at_any_scale(cls, scale):
+    g = torch.Generator().manual_seed(3)
+    layout = make_layout(4, ("viscous", "coulomb", "offset"))
+    theta = scale * _consistent_theta(layout, g)
+    out = cls.from_theta(theta, layout)().detach()
+    assert bool(torch.isfinite(out).all())
+    torch.testing.assert_close(out / scale, theta / scale, rtol=1e-10, atol=1e-10)

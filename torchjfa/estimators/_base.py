@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+import warnings
 from collections.abc import Sequence
 
 import torch
@@ -14,6 +17,16 @@ __all__ = ["LinearEstimator", "CONSTANT_COLUMN_RTOL"]
 # A column whose variance about the mean (about zero without intercept) is below this fraction of
 # its raw second moment is treated as constant: it carries no information and gets coefficient 0.
 CONSTANT_COLUMN_RTOL = 1e-10
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` of `warnings.warn` that names the first frame outside this package
+    (the user's ``fit`` call, however many estimator layers are in between)."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    frame, level = sys._getframe(2), 2  # stacklevel 2 is the warning function's caller
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 class LinearEstimator:
@@ -33,6 +46,8 @@ class LinearEstimator:
 
     #: whether the estimator needs CV folds when a hyper-parameter is left to be chosen
     _uses_folds = False
+    #: the hyper-parameter that cross-validation chooses (for messages)
+    _cv_parameter = "the hyper-parameter"
 
     def __init__(self, *, fit_intercept: bool = True, cv: int = 5) -> None:
         self.fit_intercept = fit_intercept
@@ -45,6 +60,13 @@ class LinearEstimator:
         # separate isfinite pass over X cost three times the statistics themselves)
         X, y, weights = check_Xy(X, y, weights, finite=False)
         if self._needs_folds():
+            if X.shape[0] < 2:
+                raise ValueError(
+                    f"{type(self).__name__} chooses {self._cv_parameter} by {self.cv}-fold "
+                    f"cross-validation, which needs at least 2 rows (one per fold; {self.cv} for "
+                    f"{self.cv} folds, and many more than the {X.shape[1]} columns for a useful "
+                    f"choice); got {X.shape[0]}. Give more rows, or set {self._cv_parameter}="
+                )
             return self.fit_moments(kfold_moments(X, y, min(self.cv, X.shape[0]), weights))
         return self.fit_moments(Moments.from_data(X, y, weights))
 
@@ -66,6 +88,7 @@ class LinearEstimator:
                 "the hyper-parameter explicitly"
             )
         active = self._active_columns(total)
+        self._warn_if_underdetermined(total, active)
         if folds is not None:
             folds = [f.select(active) for f in folds]
         coef_active = self._solve(total.select(active), folds)
@@ -105,6 +128,33 @@ class LinearEstimator:
         if not bool(active.any()):
             raise ValueError("every input column is constant; there is nothing to regress on")
         return active
+
+    def _warn_if_underdetermined(self, moments: Moments, active: torch.Tensor) -> None:
+        """Warn, once per fit, when there are fewer rows than parameters to estimate.
+
+        The moments of n rows have rank at most n (n - 1 centred), so fewer rows than
+        parameters leave infinitely many answers that fit the data equally well: every
+        estimator then returns one picked by its regulariser, prior or numerics (a minimum-norm
+        solution, or everything shrunk to ~0), not one the data chose. Rank deficiency with
+        enough rows is not warned about here: robot regressors always have combinations of
+        parameters that no motion excites, and the base-parameter analysis reports those.
+        ``n_rows`` 0 (moments built without a row count) skips the check.
+        """
+        n_rows = int(moments.n_rows)
+        n_columns = int(active.sum())
+        n_params = n_columns + (1 if self.fit_intercept else 0)
+        if n_rows <= 0 or n_rows >= n_params:
+            return
+        what = f"{n_columns} columns" + (" and an intercept" if self.fit_intercept else "")
+        warnings.warn(
+            f"{type(self).__name__}: {n_rows} rows for {n_params} parameters ({what}): the data "
+            "cannot determine them, and the coefficients are one of infinitely many answers "
+            "that fit equally well (picked by the regulariser, the prior or round-off, not by "
+            f"the data). Use at least {n_params} rows (many more for a useful estimate) or "
+            "fewer columns.",
+            UserWarning,
+            stacklevel=_caller_level(),
+        )
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "coef_"):

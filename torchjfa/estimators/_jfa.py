@@ -54,6 +54,34 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return t.detach().to(device="cpu", dtype=torch.float64).numpy().copy()
 
 
+_ROUNDOFF_RMS = 1e-10
+
+
+def _check_noise_below_variance(noise, active, variance, centred: bool) -> None:
+    """Refuse input noise at or above a column's variance: the model splits each column's
+    variance into signal ``w_x^2`` and noise ``psi_x``, so ``psi_x >= var`` leaves no signal
+    (the loop would clamp it and return nonsense)."""
+    columns = torch.nonzero(active).flatten()
+    # a column whose RMS is below 1e-10 of the largest column's is round-off (a structurally
+    # zero regressor column of a robot: 1e-16 m/s^2): a noise estimated on it is round-off too
+    roundoff = variance < _ROUNDOFF_RMS**2 * variance.max()
+    bad = (noise[columns] >= variance) & ~roundoff
+    if not bool(bad.any()):
+        return
+    where = "about its mean" if centred else "about zero (fit_intercept=False)"
+    listed = [
+        f"column {int(c)}: noise {float(noise[c]):.4g} >= variance {float(v):.4g}"
+        for c, v in zip(columns[bad].tolist(), variance[bad].tolist(), strict=True)
+    ]
+    more = f" (and {len(listed) - 8} more)" if len(listed) > 8 else ""
+    raise ValueError(
+        "input_noise must be below the variance of each input column (the noise is part of "
+        f"what was measured); {', '.join(listed[:8])}{more}, variance {where}. Check the "
+        "units of input_noise (variances, squared units of each column, not standard "
+        "deviations) and that it was estimated on these columns"
+    )
+
+
 class _JFABase(LinearEstimator):
     """The shared fitting loop; see `JFA` and `BayesianJFA`."""
 
@@ -97,6 +125,7 @@ class _JFABase(LinearEstimator):
         dev = total.xtx.device
         noise = self._input_noise(d, dev)
         active = self._active_columns(total)
+        self._warn_if_underdetermined(total, active)
         m = total.select(active)
         sxx, sxy, syy, n = self._centered(m)
         nf = float(n)
@@ -104,6 +133,8 @@ class _JFABase(LinearEstimator):
         sy = torch.sqrt(syy / nf)
         if not float(sy) > 0:
             raise ValueError("y is constant (zero variance); there is nothing to regress")
+        if noise is not None:
+            _check_noise_below_variance(noise, active, sx * sx, self.fit_intercept)
         # the loop runs on CPU float64 NumPy copies of the O(d^2) moments (see _bayes_jfa.py)
         S = _Stats(
             nf,
@@ -282,7 +313,8 @@ class JFA(_JFABase):
         tol: stop when the log-likelihood changes by at most ``tol * max(|L|, N)``.
         coef_tol: stop when ``||delta coef|| <= coef_tol ||coef||`` (standardised units).
         input_noise: optional known noise variance per input, shape ``(d,)``, caller's units
-            (squared units of each column). ``psi_x`` is then held fixed at it.
+            (squared units of each column), below each column's variance. ``psi_x`` is then
+            held fixed at it.
         noise_floor: lower bound of psi_x and psi_z, as a fraction of the variance of x_m / y.
         noise_y_floor: lower bound of psi_y, as a fraction of var(y) (the likelihood is flat
             along ``psi_y + sum psi_z``).
@@ -357,7 +389,8 @@ class BayesianJFA(_JFABase):
             caller's units (squared units of each column), e.g. half the variance of the
             difference between two repeated excitation periods. ``psi_x`` is then held fixed
             at it, which makes eq. (4) identified. Zeros are allowed (exact columns) and are
-            raised to the noise floor.
+            raised to the noise floor; a noise at or above a column's variance is refused
+            (``ValueError`` naming the columns).
         ard: which loadings the relevance precision ``alpha_m`` governs. ``"shared"`` (the
             paper's model, the default): ``w_zm`` and ``w_xm`` both. ``"output"``: ``w_zm``
             alone, with ``w_xm ~ N(0, 1e8)`` in standardised units (a proper but flat
@@ -384,7 +417,18 @@ class BayesianJFA(_JFABase):
 
     Attributes:
         coef_: ``(d,)`` the noiseless-input estimate of eq. (4), ``<w_z><w_x>/<w_x^2>``, for
-            system identification; 0 for pruned and for constant columns.
+            system identification; 0 for pruned and for constant columns. It is close to
+            ``coef_noisy_ / (1 - noise_x_ / var(x))``: the predictor de-noised column by column
+            by the reliability the model attributes to each column. Without ``input_noise``
+            that split is not identified (the module docstring) and the relevance prior sets
+            it: a column that matters little for y has its ``w_x`` shrunk and most of its
+            variance put into ``noise_x_``, so its ``coef_`` is the predictor's weight
+            amplified many times. Measured (``tests/estimators/test_bayes_jfa.py``): an
+            irrelevant column correlated 0.5 with a relevant one, all inputs at SNR 11, gets
+            ``coef_`` 1.4 where OLS and ``coef_noisy_`` give 0.14 (E[y | x] rightly uses it as
+            a proxy for its noisy neighbour) and 90% of its variance is called noise (truth:
+            8%); with ``input_noise`` given it gets 0.16. Give ``input_noise`` whenever
+            ``coef_`` is to be read as physical parameters.
         coef_noisy_: ``(d,)`` the noisy-input predictor of eq. (3) (``= k``, ``E[y | x]``).
         intercept_, intercept_noisy_: 0-d intercepts of ``coef_`` and of ``coef_noisy_``.
         noise_x_: ``(d,)`` psi_x, input noise variances (each column's units squared).

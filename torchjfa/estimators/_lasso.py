@@ -285,6 +285,8 @@ class Lasso(MomentEstimator):
         self.gap_tol = gap_tol
         self.max_iter = max_iter
 
+    _cv_parameter = "alpha"
+
     def _needs_folds(self) -> bool:
         return self.alpha is None
 

@@ -99,6 +99,8 @@ class PLS(MomentEstimator):
         self.n_components = n_components
         self.max_components = max_components
 
+    _cv_parameter = "n_components"
+
     def _needs_folds(self) -> bool:
         return self.n_components is None
 

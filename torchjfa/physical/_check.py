@@ -15,7 +15,12 @@ from dataclasses import dataclass
 import torch
 
 from ..dynamics._parameters import inertia_about_origin, pseudo_inertia
-from ._parametrizations import _check_theta, _parallel_axis_term, resolve_layout
+from ._parametrizations import (
+    _check_theta,
+    _parallel_axis_term,
+    _power_of_two_scale,
+    resolve_layout,
+)
 
 __all__ = ["ConsistencyReport", "check"]
 
@@ -129,6 +134,12 @@ def check(theta, layout, *, tol: float = 1e-9) -> ConsistencyReport:
       smallest eigenvalue ``> -tol * max eig`` (with ``tol=0``, strictly positive);
     - viscous and Coulomb friction ``>= -tol * max |friction|`` (an offset may have any sign).
 
+    Any magnitude works: each body is checked in units of its largest entry, and the condition
+    on ``I_c`` is tested as ``m I_c = m I_o - (|h|^2 1 - h h^T)`` (``h = m c``), with no
+    division by m, so that a mass of 5e-181 kg whose first moment stayed O(1) (a centre of mass
+    1e180 m away: what a relevance prior leaves of an unidentifiable link) is reported
+    inconsistent, with principal moments of -1e179 kg m^2, instead of overflowing.
+
     Args:
         theta: shape ``(n_params,)``.
         layout: a `ParameterLayout` or an object with a ``.layout`` attribute.
@@ -144,22 +155,30 @@ def check(theta, layout, *, tol: float = 1e-9) -> ConsistencyReport:
         raise ValueError(f"tol must be non-negative, got {tol}")
     tol = float(tol)
     inertial, friction = layout.split(theta.to(torch.float64))
-    mass, h = inertial[:, 0], inertial[:, 1:4]
+    mass = inertial[:, 0]
     mass_ok = mass > 0
+    # each body in units of its largest entry (a power of two: exact), so that a body of 1e300
+    # kg, or one whose mass the data shrank to 5e-181 kg while its first moment h stayed O(1),
+    # neither overflows nor underflows; moments and eigenvalues are scaled back at the end
+    unit = _power_of_two_scale(inertial)  # (n_joints,)
+    pi = inertial / unit[:, None]
+    m, h = pi[:, 0], pi[:, 1:4]
+    # m I_c = m I_o - (|h|^2 1 - h h^T) with no division by m (the centre of mass h / m
+    # overflows for a vanishing mass): for m > 0 it is PSD exactly when I_c is, and its
+    # eigenvalues are m times I_c's
+    k = m[:, None, None] * inertia_about_origin(pi) - _parallel_axis_term(h)
+    k_eigs = torch.linalg.eigvalsh(0.5 * (k + k.transpose(-1, -2)))  # (n_joints, 3)
+    # I_c is I_o minus the parallel-axis term m |c|^2: rounding errors scale with both (times m)
+    scale = k_eigs.abs().amax(-1) + (h * h).sum(-1)
+    inertia_ok = mass_ok & (k_eigs[:, 0] >= -tol * scale)
+    k_margin = k_eigs[:, 0] + k_eigs[:, 1] - k_eigs[:, 2]
+    triangle_ok = mass_ok & (k_margin >= -tol * scale)
+    per_mass = unit / torch.where(mass_ok, m, torch.ones_like(m))  # kg m^2 per unit of k
+    nan = torch.full_like(k_eigs, float("nan"))
+    moments = torch.where(mass_ok[:, None], k_eigs * per_mass[:, None], nan)
+    margin = torch.where(mass_ok, k_margin * per_mass, nan[:, 0])
 
-    safe_mass = torch.where(mass_ok, mass, torch.ones_like(mass))
-    com = h / safe_mass[:, None]
-    inertia_c = inertia_about_origin(inertial) - safe_mass[:, None, None] * _parallel_axis_term(com)
-    moments = torch.linalg.eigvalsh(0.5 * (inertia_c + inertia_c.transpose(-1, -2)))
-    nan = torch.full_like(moments, float("nan"))
-    moments = torch.where(mass_ok[:, None], moments, nan)
-    # I_c is I_o minus the parallel-axis term m |c|^2: rounding errors scale with both
-    scale = moments.abs().amax(-1) + safe_mass * (com * com).sum(-1)
-    inertia_ok = mass_ok & (moments[:, 0] >= -tol * scale)
-    margin = moments[:, 0] + moments[:, 1] - moments[:, 2]
-    triangle_ok = mass_ok & (margin >= -tol * scale)
-
-    J = pseudo_inertia(inertial)
+    J = pseudo_inertia(pi)
     j_eigs = torch.linalg.eigvalsh(0.5 * (J + J.transpose(-1, -2)))
     pseudo_ok = j_eigs[:, 0] > -tol * j_eigs[:, -1].clamp_min(0)
 
@@ -175,7 +194,7 @@ def check(theta, layout, *, tol: float = 1e-9) -> ConsistencyReport:
         mass=mass,
         principal_moments=moments,
         triangle_margin=margin,
-        pseudo_inertia_min_eig=j_eigs[:, 0],
+        pseudo_inertia_min_eig=j_eigs[:, 0] * unit,
         friction=friction,
         mass_ok=mass_ok,
         inertia_ok=inertia_ok,

@@ -92,20 +92,27 @@ def theta_fn(module: nn.Module):
 def minimise(module, problem: Problem, *, max_iter: int, tol: float, verbose: bool):
     """Preconditioned LBFGS cycles on ``problem.loss(module(phi))`` from ``module.phi``.
 
+    Stops, converged, when a cycle lowers the loss by less than ``tol * (loss + _FLOOR)`` *and*
+    the Newton model at the end predicts no larger decrease (`_predicted_decrease`): a slow
+    cycle far from a minimum (a badly scaled problem, or a body creeping to the boundary of the
+    consistent set, where log-Cholesky variables run to -inf) is not taken for convergence.
+
     Returns:
         phi ``(n_joints, k)``, iterations, evaluations, converged (``tol`` met within
         ``max_iter``).
     """
     theta_of = theta_fn(module)
     phi = module.phi.detach().reshape(-1).clone()
+    n_joints = module.phi.shape[0]
     n_iter = n_eval = 0
     converged = False
     with torch.no_grad():
         previous = float(problem.loss(theta_of(phi)))
+    hessian = _hessian(theta_of, problem, phi, n_joints)
     with progress_bar(total=max_iter, desc="projection", enabled=verbose) as bar:
         while n_iter < max_iter:
             phi, done, evals, finite = _cycle(
-                theta_of, problem, phi, min(_CYCLE, max_iter - n_iter), module.phi.shape[0]
+                theta_of, problem, phi, min(_CYCLE, max_iter - n_iter), hessian
             )
             n_iter, n_eval = n_iter + done, n_eval + evals
             bar.update(done)
@@ -114,21 +121,40 @@ def minimise(module, problem: Problem, *, max_iter: int, tol: float, verbose: bo
             with torch.no_grad():
                 current = float(problem.loss(theta_of(phi)))
             bar.set_postfix(objective=f"{current * problem.norm:.5e}")
-            if previous - current <= tol * (abs(current) + _FLOOR) or done == 0:
-                converged = True
-                break
+            hessian = _hessian(theta_of, problem, phi, n_joints)  # for the next cycle, too
+            small = tol * (abs(current) + _FLOOR)
+            if previous - current <= small or done == 0:
+                converged = _predicted_decrease(theta_of, problem, phi, hessian) <= small
+                if converged or done == 0:
+                    break  # done == 0 and not converged: LBFGS is stuck, report it
             previous = current
     return phi.reshape(module.phi.shape), n_iter, n_eval, converged
 
 
-def _cycle(theta_of, problem: Problem, phi: torch.Tensor, iters: int, n_joints: int):
-    """One LBFGS run of at most ``iters`` iterations in Newton-scaled coordinates from ``phi``.
+def _predicted_decrease(theta_of, problem: Problem, phi: torch.Tensor, hessian) -> float:
+    """What a Newton step would still gain on the normalised loss at ``phi``:
+    ``g^T |H|^-1 g / 2`` (eigenvalues below 1e-12 of the largest are damped to it).
+
+    Unlike the preconditioner's damping (``_MU``, absolute), this one is relative, so that a
+    problem whose curvature is tiny everywhere still shows its remaining decrease.
+    """
+    x = phi.detach().clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(problem.loss(theta_of(x)), x)
+    if not (bool(torch.isfinite(g).all()) and bool(torch.isfinite(hessian).all())):
+        return float("inf")
+    evals, evecs = torch.linalg.eigh(0.5 * (hessian + hessian.T))
+    curvature = evals.abs() + 1e-12 * float(evals.abs().max()) + 1e-300
+    return float(0.5 * ((evecs.T @ g) ** 2 / curvature).sum())
+
+
+def _cycle(theta_of, problem: Problem, phi: torch.Tensor, iters: int, hessian: torch.Tensor):
+    """One LBFGS run of at most ``iters`` iterations in Newton-scaled coordinates from ``phi``
+    (``hessian``: the loss's in phi at ``phi``, `_hessian`).
 
     Returns:
         (phi, iterations, evaluations, finite): phi is the start again when the end point's
         objective is not finite.
     """
-    hessian = _hessian(theta_of, problem, phi, n_joints)
     if bool(torch.isfinite(hessian).all()):
         evals, evecs = torch.linalg.eigh(0.5 * (hessian + hessian.T))
         P = (evecs * (evals.abs() + _MU).rsqrt()) @ evecs.T

@@ -27,6 +27,8 @@ an unconstrained estimate into a consistent one.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -75,6 +77,20 @@ def _check_theta(theta, layout: ParameterLayout, name: str = "theta") -> torch.T
         )
     check_finite(theta, name)
     return theta
+
+
+def _power_of_two_scale(x: torch.Tensor, dim=-1) -> torch.Tensor:
+    """The even power of two nearest ``max |x|`` over ``dim`` (1 where that is 0 or not finite).
+
+    Dividing by it is exact, and so is its square root, so normalising a body (or a whole
+    theta) by it and scaling back changes no digit; it brings the largest entry to [0.5, 2], so
+    that products, squares and eigen-decompositions of bodies of 1e-300 or 1e300 kg neither
+    underflow nor overflow.
+    """
+    big = x.abs().amax(dim)
+    ok = torch.isfinite(big) & (big > 0)
+    exponent = 2 * torch.round(0.5 * torch.log2(torch.where(ok, big, torch.ones_like(big))))
+    return torch.where(ok, torch.exp2(exponent), torch.ones_like(big))
 
 
 # ---------------------------------------------------------------------------------- friction
@@ -170,27 +186,43 @@ def virtual_from_inertial(pi: torch.Tensor) -> torch.Tensor:
 
     A body is left exactly as it is when ``m > 0`` and ``I_c`` is positive semidefinite.
     Otherwise it is moved to a nearby consistent point: the mass is raised to at least a small
-    fraction (1e-3) of the mean absolute mass over the bodies; the centre of mass ``h / m`` is
-    pulled in, if needed, to the largest radius at which ``tr(I_c) >= 0``; and the eigenvalues of
-    ``I_c`` are raised to at least 1e-3 of its largest absolute eigenvalue.
+    fraction (1e-3) of the mean absolute mass over the bodies; a mass too small for the body's
+    first moment ``h`` (the centre of mass ``h / m`` outside the radius ``sqrt(tr(I_o) / (2 m))``
+    beyond which ``tr(I_c) < 0``, e.g. a mass the data shrank to 5e-181 kg while ``h`` stayed
+    O(1)) is raised to ``4 |h|^2 / tr(I_o)``, which keeps ``h`` and puts the centre of mass at
+    ``1/sqrt(2)`` of that radius; a centre of mass that is still outside (``tr(I_o) <= 0``) is
+    pulled in to the radius; and the eigenvalues of ``I_c`` are raised to at least 1e-3 of its
+    largest absolute eigenvalue. Each body is worked on in units of its largest entry, so that
+    no magnitude (0, 1e-300 or 1e300 kg) overflows: the result is always finite.
     """
-    mass, h = pi[..., 0], pi[..., 1:4]
-    inertia_o = inertia_about_origin(pi)
-    scale = mass.abs().mean()
-    floor = _MIN_MASS_FRACTION * torch.where(scale > 0, scale, torch.ones_like(scale))
-    mass0 = torch.where(mass > 0, mass, floor.expand_as(mass))
+    unit = _power_of_two_scale(pi)  # (n_bodies,) exact powers of two
+    p = pi / unit[..., None]
+    mass, h = p[..., 0], p[..., 1:4]
+    inertia_o = inertia_about_origin(p)
+    trace = torch.diagonal(inertia_o, dim1=-2, dim2=-1).sum(-1)
+    scale = pi[..., 0].abs().mean()
+    floor = _MIN_MASS_FRACTION * torch.where(scale > 0, scale, torch.ones_like(scale)) / unit
+    # in these units |h| <= 1: a floor of 1e-12 keeps h / m <= 1e12 (no overflow in |c|^2)
+    floor = floor.clamp(1e-12, 1e12)
+    h2 = (h * h).sum(-1)
+    # the smallest mass whose centre of mass h / m lies within the trace radius, doubled
+    needed = torch.where(trace > 0, 4 * h2 / torch.where(trace > 0, trace, 1.0), 0.0)
+    # (a point mass sits on that radius: the 1e-9 spares it from rounding)
+    too_small = (mass <= 0) | ((trace > 0) & (2 * mass * (1 + 1e-9) < needed))
+    mass0 = torch.where(mass > 0, mass, floor)
+    mass0 = torch.where(too_small, torch.maximum(mass0, torch.maximum(needed, floor)), mass0)
     com = h / mass0[..., None]
     # |c|^2 <= tr(I_o) / (2 m) is necessary for tr(I_c) >= 0
-    radius = (torch.diagonal(inertia_o, dim1=-2, dim2=-1).sum(-1).clamp_min(0) / (2 * mass0)).sqrt()
+    radius = (trace.clamp_min(0) / (2 * mass0)).sqrt()
     norm = com.norm(dim=-1)
     shrink = torch.where(
-        (mass > 0) | (norm <= radius), torch.ones_like(norm), radius / norm.clamp_min(1e-300)
+        ~too_small | (norm <= radius), torch.ones_like(norm), radius / norm.clamp_min(1e-300)
     )
     com = com * shrink[..., None]
     inertia_c = inertia_o - mass0[..., None, None] * _parallel_axis_term(com)
     inertia_c = 0.5 * (inertia_c + inertia_c.transpose(-1, -2))
     evals, evecs = torch.linalg.eigh(inertia_c)
-    needs_clip = (evals[..., 0] < 0) | (mass <= 0)
+    needs_clip = (evals[..., 0] < 0) | too_small
     if bool(needs_clip.any()):
         big = evals.abs().amax(-1, keepdim=True)
         big = torch.where(big > 0, big, mass0[..., None] * (radius[..., None] ** 2 + 1e-4))
@@ -199,7 +231,8 @@ def virtual_from_inertial(pi: torch.Tensor) -> torch.Tensor:
         inertia_c = torch.where(needs_clip[..., None, None], repaired, inertia_c)
     lower = _lower_factor(inertia_c)
     six = torch.stack([lower[..., i, j] for i, j in _TRIL], -1)
-    return torch.cat([mass0.sqrt()[..., None], com, six], -1)
+    root = unit.sqrt()[..., None]  # sqrt(m) and L scale with the square root of the unit
+    return torch.cat([(mass0.sqrt()[..., None] * root), com, six * root], -1)
 
 
 # ---------------------------------------------------------------------------------- log-Cholesky
@@ -245,7 +278,8 @@ def log_cholesky_from_inertial(pi: torch.Tensor) -> torch.Tensor:
     Exact when the pseudo-inertia is positive definite; otherwise its eigenvalues are first
     raised to at least 1e-3 of its largest absolute eigenvalue (a nearby fully consistent body).
     """
-    J = pseudo_inertia(pi)
+    unit = _power_of_two_scale(pi)  # per body, as in virtual_from_inertial: J / unit is O(1)
+    J = pseudo_inertia(pi / unit[..., None])
     J = 0.5 * (J + J.transpose(-1, -2))
     flip = torch.flip(torch.flip(J, (-1,)), (-2,))
     lower, info = torch.linalg.cholesky_ex(flip)
@@ -266,7 +300,7 @@ def log_cholesky_from_inertial(pi: torch.Tensor) -> torch.Tensor:
     diag = torch.diagonal(u, dim1=-2, dim2=-1)[..., :3]
     return torch.stack(
         [
-            scale.log(),
+            scale.log() + 0.5 * unit.log(),  # U scales with sqrt(unit): J = unit * J
             diag[..., 0].log(),
             diag[..., 1].log(),
             diag[..., 2].log(),
@@ -346,6 +380,19 @@ class _ConsistentParameters(nn.Module):
         phi = torch.cat([cls._inverse_map(inertial), _friction_inverse(friction, layout)], -1)
         return cls(layout, phi=phi)
 
+    def _scaled_phi(self, unit: float) -> torch.Tensor:
+        """phi of the same bodies with theta multiplied by ``unit > 0``, for `project`, which
+        solves in units of theta_hat's largest entry."""
+        phi = self.phi.detach().clone()
+        root = unit**0.5
+        self._scale_inertial_phi(phi, unit, root)
+        for k, squared in enumerate(_friction_signs(self.layout)):
+            phi[:, 10 + k] *= root if squared else unit
+        return phi
+
+    def _scale_inertial_phi(self, phi, unit, root) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
     def extra_repr(self) -> str:
         return f"n_joints={self.layout.n_joints}, friction={self.layout.friction}"
 
@@ -374,6 +421,10 @@ class VirtualParameters(_ConsistentParameters):
     _inverse_map = staticmethod(virtual_from_inertial)
     _variable_names = ("sqrt_m", "cx", "cy", "cz", "L11", "L21", "L31", "L22", "L32", "L33")
 
+    def _scale_inertial_phi(self, phi, unit, root) -> None:
+        phi[:, 0] *= root  # sqrt(m)
+        phi[:, 4:10] *= root  # L; the centre of mass is unchanged
+
     def _default_phi(self) -> torch.Tensor:
         per = torch.zeros(self.layout.params_per_joint, dtype=torch.float64)
         per[0] = 1.0
@@ -401,6 +452,9 @@ class LogCholeskyParameters(_ConsistentParameters):
     _inertial_map = staticmethod(inertial_from_log_cholesky)
     _inverse_map = staticmethod(log_cholesky_from_inertial)
     _variable_names = ("alpha", "d1", "d2", "d3", "s12", "s23", "s13", "t1", "t2", "t3")
+
+    def _scale_inertial_phi(self, phi, unit, root) -> None:
+        phi[:, 0] += 0.5 * math.log(unit)  # J = e^(2 alpha) (...)
 
     def _default_phi(self) -> torch.Tensor:
         per = torch.zeros(self.layout.params_per_joint, dtype=torch.float64)

@@ -28,6 +28,7 @@ from ._parametrizations import (
     LogCholeskyParameters,
     VirtualParameters,
     _check_theta,
+    _power_of_two_scale,
     resolve_layout,
 )
 
@@ -47,13 +48,15 @@ class ProjectionResult:
             `LogCholeskyParameters`, float64); ``virtual()`` returns ``theta`` in float64.
         parametrization: ``"virtual"`` or ``"log-cholesky"``.
         cost: eq. 8 at the result, ``(theta - theta_hat)^T M (theta - theta_hat)`` (torque^2
-            units: how much the training residual sum of squares grows over theta_hat's).
+            units: how much the training residual sum of squares grows over theta_hat's; inf
+            when it exceeds float64's range, e.g. for a theta_hat of 1e300).
         initial_cost: the same for ``from_theta(theta_hat)`` (theta_hat itself when it is
             consistent, otherwise its clipped version), the simple alternative to projecting.
         objective, initial_objective: what was minimised: ``cost`` plus the ridge and prior
             terms (see `project`).
         n_iter: LBFGS iterations (both phases of a warm start); n_eval: evaluations.
-        converged: the stopping test on ``tol`` was met within ``max_iter``.
+        converged: the stopping test on ``tol`` was met within ``max_iter``, and the Newton
+            model at the end predicted no larger decrease (a stall is not convergence).
         grad_max: largest absolute gradient of the normalised objective in phi at the end.
         relative_change: ``(n_joints,)`` ``||theta_j - theta_hat_j|| / ||theta_hat_j||`` over each
             joint's parameters (inertial and friction; mixed units, a rough measure).
@@ -202,12 +205,19 @@ def project(
     consistent (exactly representable by the parametrisation) minimises eq. 8 and is returned
     unchanged when no prior is given.
 
+    Scale. Eq. 8 and the consistent set are invariant under theta -> s theta (s > 0): the
+    problem is solved in units where theta_hat's size as the data see it,
+    ``sqrt(theta_hat^T M theta_hat / tr(M))``, and M's mean diagonal are 1, and the answer is
+    scaled back, so the projection of ``s * theta_hat`` is ``s`` times that of theta_hat for
+    any s (masses of 1e-3 kg or 1e12 kg alike; ``cost`` scales with s^2).
+
     Optimisation. LBFGS sees the objective divided by its value at theta = 0 and runs in cycles
     of 25 iterations, each in coordinates ``phi = phi_start + P psi`` with
     ``P = (|H| + 1e-4)^(-1/2)``, H the Hessian in phi at the cycle's start (absolute
     eigenvalues), so that every direction has a curvature near 1 however ill-conditioned M is.
     It stops when a cycle lowers the objective by less than ``tol`` times the larger of the
-    objective and 1e-3 of its value at theta = 0, or after ``max_iter`` iterations. The
+    objective and 1e-3 of its value at theta = 0 and the Newton model at its end predicts no larger
+    decrease, or after ``max_iter`` iterations (then ``converged`` is False). The
     optimisation runs with one torch thread (the setting is restored afterwards): on matrices
     this small, BLAS threads only add synchronisation, which on a busy machine slows each
     product down a hundredfold.
@@ -280,9 +290,17 @@ def project(
         prior = _check_theta(prior, layout, "prior").to(device=device, dtype=torch.float64)
     if float(prior_weight) > 0 and prior is None:
         raise ValueError("prior_weight > 0 needs prior= (nominal parameters, shape (n_params,))")
-    problem = Problem(
-        th, M, float(ridge), prior if float(prior_weight) > 0 else None, float(prior_weight)
-    )
+    # the problem is solved in units where theta_hat's size (`_unit_of`) and M's mean diagonal
+    # are ~1, then scaled back: eq. 8 and the consistent set are
+    # invariant under theta -> s theta (s > 0), so the answer for s theta_hat is s times the
+    # answer for theta_hat, however large or small s (the optimiser's floors, damping and
+    # default body are O(1) numbers)
+    m_unit = float(_power_of_two_scale(torch.diagonal(M).mean().reshape(1)))
+    M_n = M / m_unit
+    unit = _unit_of(th, M_n, prior)
+    th_n = th / unit
+    prior_n = prior / unit if prior is not None and float(prior_weight) > 0 else None
+    problem = Problem(th_n, M_n, float(ridge), prior_n, float(prior_weight))
 
     cls = PARAMETRIZATIONS[parametrization]
     with single_thread():
@@ -298,10 +316,15 @@ def project(
     phi = fitted.phi.detach()
 
     with torch.no_grad():
-        theta0 = cls.from_theta(th, layout)()
-        theta64 = fitted()
+        theta0_n = cls.from_theta(th_n, layout)()
+        theta_n = fitted()
     phi_end = phi.reshape(-1).clone().requires_grad_(True)
     (grad,) = torch.autograd.grad(problem.loss(theta_fn(fitted)(phi_end)), phi_end)
+    fitted = cls(layout, phi=fitted._scaled_phi(unit))  # back in theta_hat's units
+    with torch.no_grad():
+        theta64 = fitted()
+    # eq. 8 and the objective scale with unit^2 m_unit (inf beyond float64's range, 1.8e308)
+    to_units = unit * unit * m_unit
 
     inertial_hat, _ = layout.split(th)
     per_hat = th.reshape(layout.n_joints, -1)
@@ -313,10 +336,10 @@ def project(
         theta_hat=theta_hat,
         virtual=fitted,
         parametrization=parametrization,
-        cost=_eq8(theta64, th, M),
-        initial_cost=_eq8(theta0, th, M),
-        objective=float(problem.objective(theta64)),
-        initial_objective=float(problem.objective(theta0)),
+        cost=_eq8(theta_n, th_n, M_n) * to_units,
+        initial_cost=_eq8(theta0_n, th_n, M_n) * to_units,
+        objective=float(problem.objective(theta_n)) * to_units,
+        initial_objective=float(problem.objective(theta0_n)) * to_units,
         n_iter=n_iter,
         n_eval=n_eval,
         converged=converged,
@@ -367,6 +390,26 @@ def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose)
     module = starts[min(finite)[1]] if finite else exact
     phi, k, e, converged = minimise(module, problem, max_iter=max_iter, tol=tol, verbose=verbose)
     return cls(layout, phi=phi), n_iter + k, n_eval + e, converged
+
+
+def _unit_of(theta_hat: torch.Tensor, M: torch.Tensor, prior: torch.Tensor | None) -> float:
+    """The size of theta_hat as the data see it, ``sqrt(theta_hat^T M theta_hat / tr(M))``
+    (theta_hat's largest magnitude when that is 0, the prior's when theta_hat is 0, else 1).
+
+    Homogeneous of degree 1 and not rounded: the normalised problem of s theta_hat is then the
+    same as theta_hat's to rounding, so that the optimiser takes the same path (the same start,
+    the same local minimum of the non-convex problem in phi) for any s > 0. Weighted by M, so
+    that huge components along directions the data do not excite (unregularised estimates on
+    poor data) do not set the scale.
+    """
+    for t in (theta_hat, prior):
+        if t is None or not bool((t != 0).any()):
+            continue
+        big = t.abs().max()
+        u = t / big  # no overflow in the quadratic form
+        size = float((u @ (M @ u) / torch.diagonal(M).sum()).clamp_min(0).sqrt() * big)
+        return size if 0 < size < float("inf") else float(big)
+    return 1.0
 
 
 def _truncated(theta_hat: torch.Tensor, M: torch.Tensor, rcond: float = 1e-8) -> torch.Tensor:
