@@ -24,11 +24,11 @@ import math
 import time
 
 import torch
-from _seeds import parse_seeds, seeds_help, summary_lines
 
 import torchjfa
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA
+from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
 from torchjfa.physical import check, project
 
 

@@ -19,9 +19,8 @@ import csv
 import json
 from pathlib import Path
 
-from _seeds import parse_seeds, seeds_help, summary_lines
-
 from torchjfa.experiments import fig2
+from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
 
 
 def format_table(summary: list[dict]) -> str:

@@ -19,9 +19,8 @@ import json
 import time
 from pathlib import Path
 
-from _seeds import parse_seeds, seeds_help, summary_lines
-
 from torchjfa.experiments import robots as exp
+from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
 
 NUMBERS = {"head": "I", "arm": "II"}  # the paper's table numbers
 

@@ -33,13 +33,13 @@ from pathlib import Path
 
 import lightning as L
 import torch
-from _seeds import parse_seeds, seeds_help, summary_lines
 from torch.utils.data import DataLoader, RandomSampler
 
 import torchjfa.io
 from torchjfa.data import coverage
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS
+from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
 from torchjfa.learning import ResidualDynamicsModule, StateTorqueDataset, log_tensors, nmse
 from torchjfa.pipeline import identify, residual_joint_weights
 from torchjfa.sim import generate_log, load_robot, model_path, random_trajectory

@@ -1,17 +1,12 @@
-"""`scripts/_seeds.py`: the headline scripts' --seeds parsing and summaries."""
+"""`torchjfa.experiments.seeds`: the headline scripts' --seeds parsing and summaries."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "scripts" / "_seeds.py"
-_spec = importlib.util.spec_from_file_location("_seeds", _PATH)
-seeds = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(seeds)
+from torchjfa.experiments import seeds
 
 
 def test_parse_seeds():
