@@ -1,9 +1,11 @@
 """The torchjfa command: end to end on a simulated CSV log, and every bad input it must name."""
 
+import io
 import json
 import shutil
 import subprocess
 import sys
+import zipfile
 
 import numpy as np
 import pytest
@@ -263,3 +265,41 @@ def test_evaluate_prints_per_joint_errors(tmp_path, capsys, head_csv):
     code = main(["evaluate", str(out / "model.npz"), "--robot", "arm", "--quiet", "--no-control"])
     assert code == 2
     assert "are not the simulated arm's" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["truncated", "bit-flipped", "empty", "foreign"])
+def test_evaluate_on_a_damaged_or_foreign_model_file_prints_one_line(kind, tmp_path, capsys):
+    from torchjfa.dynamics import RigidBodyModel
+    from torchjfa.io import save_identified
+    from torchjfa.sim import model_path
+
+    head = RigidBodyModel.from_mjcf(model_path("head"))
+    good = tmp_path / "good.npz"
+    save_identified(good, head, head.nominal_theta)
+    blob = good.read_bytes()
+    bad = {
+        "truncated": blob[: len(blob) // 2],
+        "bit-flipped": None,
+        "empty": b"",
+        "foreign": None,
+    }[kind]
+    if kind == "bit-flipped":  # a byte in the middle of the first member's compressed data
+        n_name, n_extra = (int.from_bytes(blob[k : k + 2], "little") for k in (26, 28))
+        start = 30 + n_name + n_extra  # the first local header is at 0 and 30 bytes long
+        size = zipfile.ZipFile(io.BytesIO(blob)).infolist()[0].compress_size
+        b = bytearray(blob)
+        b[start + size // 2] ^= 0xFF  # the CRC-32 (or the deflate stream) catches it
+        bad = bytes(b)
+    elif kind == "foreign":
+        np.savez(tmp_path / "other.npz", q=np.zeros((3, 7)))
+        bad = (tmp_path / "other.npz").read_bytes()
+    path = tmp_path / "model.npz"
+    path.write_bytes(bad)
+    code = main(["evaluate", str(path), "--robot", "head", "--quiet", "--no-control"])
+    out = capsys.readouterr()
+    assert code == 2
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1, out.err
+    assert lines[0].startswith("torchjfa evaluate: error: ")
+    assert "not a torchjfa model file, or it is damaged" in lines[0]
+    assert "Traceback" not in out.err and out.out == ""

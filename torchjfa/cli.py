@@ -314,7 +314,10 @@ def cmd_evaluate(args) -> int:
 
     if not os.path.isfile(args.model):
         raise UsageError(f"no model file {args.model!r}")
-    ident = read_identified(args.model)
+    try:
+        ident = read_identified(args.model)
+    except ValueError as exc:  # not a model file, or a damaged one: the message says which
+        raise UsageError(str(exc)) from None
     model, theta = ident.model, ident.theta
     log = generate_log(
         args.robot, n_samples=args.n_samples, seed=args.seed, progress=not args.quiet
