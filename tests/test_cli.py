@@ -1,5 +1,6 @@
 """The torchjfa command: end to end on a simulated CSV log, and every bad input it must name."""
 
+import argparse
 import io
 import json
 import shutil
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchjfa.cli import main
+from torchjfa.cli import build_parser, main
 from torchjfa.data import read_log, write_log
 from torchjfa.io import load_identified, read_identified
 from torchjfa.report import torque_errors
@@ -303,3 +304,52 @@ def test_evaluate_on_a_damaged_or_foreign_model_file_prints_one_line(kind, tmp_p
     assert lines[0].startswith("torchjfa evaluate: error: ")
     assert "not a torchjfa model file, or it is damaged" in lines[0]
     assert "Traceback" not in out.err and out.out == ""
+
+
+def _option_blocks(help_text: str) -> dict[str, str]:
+    """Each option's entry in ``--help`` (its first line and the indented lines after it), by
+    the option's first name, with the line breaks of the wrapping removed."""
+    blocks: dict[str, list[str]] = {}
+    name = None
+    for line in help_text.splitlines():
+        if line.startswith("  -"):
+            name = line.split()[0].rstrip(",")
+            blocks[name] = [line]
+        elif name is not None and line.startswith("   "):
+            blocks[name].append(line)
+        else:
+            name = None
+    return {k: " ".join(" ".join(v).split()) for k, v in blocks.items()}
+
+
+def _shown(default) -> str:
+    if isinstance(default, tuple):
+        return ",".join(default)
+    return f"{default:g}" if isinstance(default, float) else str(default)
+
+
+def test_help_of_every_command_shows_every_default():
+    parser = build_parser()
+    (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert {"identify", "simulate", "evaluate"} <= set(commands.choices)
+    checked = 0
+    for name, sub in commands.choices.items():
+        blocks = _option_blocks(sub.format_help())
+        for action in sub._actions:
+            if not action.option_strings or action.help == argparse.SUPPRESS:
+                continue
+            block = blocks[action.option_strings[0]]
+            if action.nargs == 0:  # a flag: off unless given, and its help says what it does
+                assert len(block.split()) > 1, (name, action.option_strings)
+                continue
+            if action.default is None:
+                continue
+            assert f"(default: {_shown(action.default)})" in block, (name, block)
+            assert block.count("(default") == 1, (name, block)
+            checked += 1
+    assert checked >= 23  # 17 options with a default in identify, 3 in simulate, 3 in evaluate
+    identify = _option_blocks(commands.choices["identify"].format_help())
+    assert identify["--max-iter"].endswith("(default: 20000)")
+    assert identify["--friction"].endswith("(default: viscous)")
+    assert identify["--cutoff"].endswith("(default: 20)")
+    assert identify["--estimator"].endswith("(default: bayes-jfa)")
