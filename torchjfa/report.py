@@ -40,6 +40,9 @@ __all__ = [
     "make_report",
     "predicted_torques",
     "torque_errors",
+    "estimator_text",
+    "undetermined",
+    "UNDETERMINED_FACTOR",
 ]
 
 
@@ -96,6 +99,101 @@ def _numbers(v) -> list:
     return out
 
 
+def _setting(value) -> str:
+    """One estimator setting, short: a per-column tensor as its size and median, not its
+    entries."""
+    if isinstance(value, (torch.Tensor, np.ndarray)):
+        v = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
+        if v.numel() == 1:
+            return f"{float(v):.4g}"
+        zeros = int((v == 0).sum())
+        text = f"given: {v.numel()} columns, median {float(v.median()):.2g}"
+        return "(" + text + (f", {zeros} of them 0" if zeros else "") + ")"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return repr(value)
+
+
+def estimator_text(est) -> str:
+    """The estimator's name and settings on one line, e.g. ``BayesianJFA(max_iter=20000, ...,
+    input_noise=(given: 84 columns, median 0.00031, 10 of them 0))``: arrays summarised (`repr`
+    would print every entry)."""
+    params = ", ".join(
+        f"{k}={_setting(v)}" for k, v in vars(est).items() if not k.endswith("_") and k[0] != "_"
+    )
+    return f"{type(est).__name__}({params})"
+
+
+_NOISE_MODES = {
+    "periods": "fixed to the spread between excitation periods",
+    "learn": "learned by the estimator",
+}
+
+
+def _convergence(est) -> tuple[str, str | None]:
+    """``(line, warning)``: the estimator's iterations and whether its stopping rule held, and a
+    warning when it did not (None when it did or the estimator is not iterative)."""
+    name = type(est).__name__
+    if not hasattr(est, "converged_"):
+        if hasattr(est, "n_iter_"):
+            return f"{int(est.n_iter_)} iterations (no convergence flag)", None
+        return "closed form (no iterations)", None
+    n_iter = int(getattr(est, "n_iter_", -1))
+    reason = getattr(est, "stop_reason_", None)
+    if est.converged_:
+        return f"{n_iter} iterations, converged: yes (stopping rule: {reason})", None
+    cap = getattr(est, "max_iter", None)
+    return (
+        f"{n_iter} iterations, converged: **no** (stopped by {reason})",
+        f"**Warning: {name} did not converge**: it stopped at its iteration cap"
+        + (f" (max_iter={cap})" if cap is not None else "")
+        + " before its stopping rule held, so its estimates may be far from the optimum; "
+        "compare the held-out errors with `--estimator ols`, or raise `--max-iter`.",
+    )
+
+
+# the unit value of each parameter kind (kg, kg m, kg m^2, N m s/rad, N m): a floor under the
+# description's scale, so that a description with (near-)zero masses still has a scale
+_UNIT_SCALE = 1.0
+UNDETERMINED_FACTOR = 1e6  # |value| above this x the kind's scale is beyond any physical scale
+
+
+def _kind(name: str) -> str:
+    """A parameter's kind from its name: ``m``, ``mc`` (first moments), ``I`` (inertia) or the
+    friction/joint term's own suffix (``fv``, ``fc``, ...)."""
+    short = name.rsplit(".", 1)[-1]
+    if short.startswith("mc"):
+        return "mc"
+    if short.startswith("I"):
+        return "I"
+    return short
+
+
+def undetermined(values, names, description) -> torch.Tensor:
+    """Which ``values`` lie beyond any physical scale: not finite, or larger in magnitude than
+    `UNDETERMINED_FACTOR` times their kind's scale, the largest ``|description|`` value of that
+    kind (at least 1 in SI units, so that a description with near-zero masses does not make
+    every value look unphysical).
+
+    Args:
+        values: ``(n_params,)`` values (unconstrained estimates, spreads), NaN allowed.
+        names: the ``n_params`` parameter names (``joint.m``, ``joint.Ixx``, ``joint.fv``, ...).
+        description: ``(n_params,)`` the description's parameters.
+
+    Returns:
+        ``(n_params,)`` bool, True where the value should read "undetermined".
+    """
+    v = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
+    d = torch.as_tensor(description, dtype=torch.float64).reshape(-1).abs()
+    kinds = [_kind(n) for n in names]
+    scale = {k: _UNIT_SCALE for k in kinds}
+    for k, x in zip(kinds, d.tolist(), strict=True):
+        if math.isfinite(x):
+            scale[k] = max(scale[k], x)
+    bound = torch.tensor([UNDETERMINED_FACTOR * scale[k] for k in kinds], dtype=torch.float64)
+    return ~torch.isfinite(v) | (v.abs() > bound)
+
+
 def _figure(path, rows: int, **kw):
     """A figure with ``rows`` stacked axes: through pyplot for display, or, when it is only
     saved to ``path``, a bare `matplotlib.figure.Figure` (pyplot's backend is left alone, so
@@ -103,11 +201,40 @@ def _figure(path, rows: int, **kw):
     if path is None:
         import matplotlib.pyplot as plt
 
-        return plt.subplots(rows, 1, squeeze=False, **kw)
+        return plt.subplots(rows, 1, squeeze=False, layout="constrained", **kw)
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=kw.pop("figsize"))
+    fig = Figure(figsize=kw.pop("figsize"), layout="constrained")
     return fig, fig.subplots(rows, 1, squeeze=False, **kw)
+
+
+# parameter kinds in the parameters figure: (label, colour, marker), by `_kind`
+_TOP = 1e5  # the parameters figure's highest y: above it, a mark at the top edge
+_KIND_STYLE = {
+    "m": ("mass m", "C0", "o"),
+    "mc": ("first moments m c", "C1", "s"),
+    "I": ("inertia I (6 entries)", "C2", "D"),
+    "friction": ("friction (fv, fc, fo)", "C4", "^"),
+    "other": ("joint terms", "C5", "v"),
+}
+
+
+def _kind_group(kind: str) -> str:
+    if kind in ("m", "mc", "I"):
+        return kind
+    return "friction" if kind in ("fv", "fc", "fo") else "other"
+
+
+def _body_groups(names) -> list[tuple[str, int, int]]:
+    """``(body, first, stop)`` index ranges of the consecutive parameters of each joint's body."""
+    groups: list[tuple[str, int, int]] = []
+    for i, name in enumerate(names):
+        body = name.rsplit(".", 1)[0]
+        if groups and groups[-1][0] == body:
+            groups[-1] = (body, groups[-1][1], i + 1)
+        else:
+            groups.append((body, i, i + 1))
+    return groups
 
 
 def _verdict(c: ConsistencyReport) -> str:
@@ -149,9 +276,16 @@ class IdentificationReport:
     def model(self):
         return self.result.model
 
-    def parameter_rows(self) -> list[dict[str, object]]:
-        """One dict per parameter: name, identified, unconstrained, jackknife_std,
-        posterior_std, relevance, description (None where not available)."""
+    @property
+    def excited(self) -> torch.Tensor:
+        """``(n_params,)`` bool: the parameter's regressor column is not zero in the training
+        data. Where it is, the data say nothing about the parameter (its unconstrained value
+        is 0 by convention and the identified one comes from the projection alone)."""
+        return torch.diagonal(self.result.moments.xtx) > 0
+
+    def _columns(self) -> dict[str, torch.Tensor | None]:
+        """The parameter table's columns as float64 tensors (NaN and inf kept), None where the
+        estimator has no such column."""
         r = self.result
         est = r.estimator
         cols = {
@@ -162,11 +296,35 @@ class IdentificationReport:
             "relevance": getattr(est, "relevance_", None),
             "description": self.model.nominal_theta,
         }
-        cols = {k: None if v is None else _numbers(v) for k, v in cols.items()}
+        return {
+            k: None if v is None else torch.as_tensor(v, dtype=torch.float64).reshape(-1).cpu()
+            for k, v in cols.items()
+        }
+
+    def undetermined_entries(self) -> dict[str, torch.Tensor]:
+        """Column -> ``(n_params,)`` bool: where the identified value, the unconstrained value
+        or a spread lies beyond any physical scale or is not finite (`undetermined`); only the
+        columns the estimator has."""
+        cols = self._columns()
+        names = self.model.parameter_names
+        nominal = cols["description"]
+        return {
+            k: undetermined(cols[k], names, nominal)
+            for k in ("identified", "unconstrained", "jackknife_std", "posterior_std")
+            if cols[k] is not None
+        }
+
+    def parameter_rows(self) -> list[dict[str, object]]:
+        """One dict per parameter: name, identified, unconstrained, jackknife_std,
+        posterior_std, relevance, description (None where not available), excited (see
+        `excited`)."""
+        cols = {k: None if v is None else _numbers(v) for k, v in self._columns().items()}
+        excited = self.excited.tolist()
         rows = []
         for i, name in enumerate(self.model.parameter_names):
             row: dict[str, object] = {"parameter": name}
             row.update({k: None if v is None else v[i] for k, v in cols.items()})
+            row["excited"] = bool(excited[i])
             rows.append(row)
         return rows
 
@@ -177,11 +335,12 @@ class IdentificationReport:
             "robot": self.settings.get("robot"),
             "joint_names": list(self.model.joint_names),
             "n_params": self.model.n_params,
-            "estimator": repr(r.estimator),
+            "estimator": estimator_text(r.estimator),
             "train_samples": r.n_samples,
             "validation_samples": self.validation.n_samples,
             "train_rmse": r.rmse(),
             "converged": bool(getattr(r.estimator, "converged_", True)),
+            "n_iter": int(r.estimator.n_iter_) if hasattr(r.estimator, "n_iter_") else None,
             "stop_reason": getattr(r.estimator, "stop_reason_", None),
             "validation": {
                 name: {"nmse": _numbers(f.nmse), "rms": _numbers(f.rms), "mean_nmse": f.mean_nmse}
@@ -198,61 +357,192 @@ class IdentificationReport:
 
     # ------------------------------------------------------------------------- figures
     def plot_torques(self, path=None, *, seconds: float | None = 10.0):
-        """Measured and predicted held-out torque per joint (the first ``seconds``)."""
+        """Measured and predicted held-out torque per joint (the first ``seconds``).
+
+        One axes per joint, its title giving each prediction's nMSE; one legend for the figure,
+        below the axes (it covers no curve).
+
+        Returns:
+            The `matplotlib.figure.Figure` (written to ``path`` when given).
+        """
         log = self.validation
         t = (log.t - log.t[0]).numpy()
         n = log.n_samples if seconds is None else int(np.searchsorted(t, seconds, side="right"))
         n = max(n, 2)
         n_dof = log.n_dof
-        fig, axes = _figure(path, n_dof, figsize=(9, 1.7 * n_dof + 0.6), sharex=True)
+        fig, axes = _figure(path, n_dof, figsize=(9, 1.5 * n_dof + 0.9), sharex=True)
         styles = {
-            "identified": {"color": "C1", "lw": 1.2},
+            "identified": {"color": "C1", "lw": 1.2, "zorder": 3},  # the saved model: on top
             "unconstrained": {"color": "C2", "lw": 0.9, "ls": "--"},
             "description": {"color": "C7", "lw": 0.9, "ls": ":"},
         }
+        labels = {
+            "identified": "identified (physically consistent, saved)",
+            "unconstrained": "unconstrained estimate",
+            "description": "description's parameters",
+        }
+        kinds = dict(zip(self.model.joint_names, self.model.joint_types, strict=True))
         for j, ax in enumerate(axes[:, 0]):
             ax.plot(t[:n], log.tau[:n, j].numpy(), color="k", lw=0.8, label="measured")
             for name, fit in self.fits.items():
-                label = f"{name} (nMSE {float(fit.nmse[j]):.3g})"
-                ax.plot(t[:n], fit.predicted[:n, j].numpy(), label=label, **styles.get(name, {}))
-            ax.set_ylabel(f"{log.joint_names[j]}\n[N m]", fontsize=8)
-            ax.legend(fontsize=6, loc="upper right", ncol=4)
+                ax.plot(
+                    t[:n],
+                    fit.predicted[:n, j].numpy(),
+                    label=labels.get(name, name),
+                    **styles.get(name, {}),
+                )
+            errors = ", ".join(f"{name} {float(f.nmse[j]):.3g}" for name, f in self.fits.items())
+            ax.set_title(f"{log.joint_names[j]}: nMSE {errors}", fontsize=8, loc="left")
+            ax.set_ylabel("N" if kinds[log.joint_names[j]] == "prismatic" else "N m", fontsize=8)
+            ax.tick_params(labelsize=7)
         axes[-1, 0].set_xlabel("time into the held-out data [s]")
+        handles, names = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles, names, loc="outside lower center", ncol=len(names), fontsize=8)
         fig.suptitle("Held-out torque: measured and predicted", fontsize=10)
-        fig.tight_layout()
         if path is not None:
             fig.savefig(path, dpi=110)
         return fig
 
     def plot_parameters(self, path=None):
-        """Per parameter: |value| over its jackknife spread, and the relevance when known."""
+        """How far each unconstrained estimate stands from 0, in its own spreads.
+
+        One marker per parameter at ``|unconstrained| / spread`` (the jackknife spread, else
+        Bayesian JFA's posterior spread) on a log axis, parameters grouped by body (one tick and
+        a separator per body), colour and marker by kind (mass, first moments, inertia,
+        friction); a line at 2 spreads (below it the data do not tell the value from 0);
+        parameters the data do not determine marked at the foot of the axes (not excited: a
+        zero regressor column; undetermined: a value or spread beyond any physical scale, see
+        `undetermined`); parameters Bayesian JFA calls irrelevant (``<alpha>`` above 100 times
+        the median) ringed. Without any spread: ``|identified|`` and ``|description|``. Every
+        mark is explained in the legend, right of the axes.
+
+        Returns:
+            The `matplotlib.figure.Figure` (written to ``path`` when given).
+        """
+        from matplotlib.lines import Line2D
+
         rows = self.parameter_rows()
         names = [r["parameter"] for r in rows]
-        x = np.arange(len(rows))
-        panels = []
-        if self.result.theta_hat_std is not None:
-            ratio = [
-                abs(r["unconstrained"]) / r["jackknife_std"] if r["jackknife_std"] else np.nan
-                for r in rows
-            ]
-            panels.append(("|unconstrained| / jackknife std", ratio, 2.0))
-        if any(r["relevance"] is not None for r in rows):
-            rel = [np.nan if r["relevance"] is None else r["relevance"] for r in rows]
-            panels.append(("relevance <alpha> (large: irrelevant)", rel, None))
-        if not panels:
-            panels.append(("|identified|", [abs(r["identified"]) for r in rows], None))
-        width = max(8, 0.12 * len(rows))
-        fig, axes = _figure(path, len(panels), figsize=(width, 2.6 * len(panels)))
-        for ax, (title, vals, line) in zip(axes[:, 0], panels, strict=True):
-            vals = np.asarray(vals, dtype=float)
-            ax.bar(x, np.where(np.isfinite(vals) & (vals > 0), vals, np.nan), color="C0")
-            ax.set_yscale("log")
-            ax.set_title(title, fontsize=9)
-            if line is not None:
-                ax.axhline(line, color="C3", lw=0.8, ls="--")
-            ax.set_xticks(x, names, rotation=90, fontsize=5)
-            ax.set_xlim(-1, len(rows))
-        fig.tight_layout()
+        n = len(rows)
+        x = np.arange(n)
+        excited = np.array([r["excited"] for r in rows])
+        value = np.array(
+            [np.nan if r["unconstrained"] is None else r["unconstrained"] for r in rows]
+        )
+        spread, spread_name = None, None
+        for key, label in (("jackknife_std", "jackknife"), ("posterior_std", "posterior")):
+            if any(r[key] is not None for r in rows):
+                spread = np.array([np.nan if r[key] is None else r[key] for r in rows])
+                spread_name = label
+                break
+        flags = self.undetermined_entries()
+        bad = flags["unconstrained"].numpy().copy()
+        if spread is not None:
+            bad |= flags[
+                {"jackknife": "jackknife_std", "posterior": "posterior_std"}[spread_name]
+            ].numpy()
+            with np.errstate(divide="ignore", invalid="ignore"):
+                y = np.abs(value) / spread
+            ylabel = f"|unconstrained| / {spread_name} spread"
+            title = f"How far each unconstrained estimate lies from 0, in {spread_name} spreads"
+        else:
+            y = np.abs(np.array([r["identified"] for r in rows], dtype=float))
+            ylabel = "|identified value| (SI units)"
+            title = "Identified parameters (no spread: run with a jackknife for one)"
+        plotted = excited & ~bad
+        # 0 / 0, or x / 0 (every refit the same): an estimate pruned to ~0, drawn at the foot
+        y = np.where(np.isnan(y) | (spread == 0 if spread is not None else False), 0.0, y)
+        sized = plotted & np.isfinite(y) & (y > 0)
+        if sized.any():
+            top = 10 ** np.ceil(np.log10(max(y[sized].max() * 1.5, 30.0)))
+            top = min(top, _TOP)  # a ratio of two numbers near 0 (a pruned parameter) is noise
+            low = 10 ** np.floor(np.log10(max(y[sized].min(), 1e-3)))
+            low = min(low, 0.1)
+        else:
+            top, low = 100.0, 0.1
+        foot = low * 1.6  # where the marks of undetermined parameters sit
+
+        fig, axes = _figure(path, 1, figsize=(max(8.0, 0.09 * n + 4.0), 4.2))
+        ax = axes[0, 0]
+        groups = _body_groups(names)
+        for _, first, _ in groups[1:]:
+            ax.axvline(first - 0.5, color="0.8", lw=0.8, zorder=0)
+        kinds = np.array([_kind_group(_kind(nm)) for nm in names])
+        handles = []
+        for kind, (label, color, marker) in _KIND_STYLE.items():
+            sel = plotted & (kinds == kind)
+            if not sel.any():
+                continue
+            ax.vlines(x[sel], low, np.clip(y[sel], low, top), color=color, lw=1.0, alpha=0.5)
+            yk = np.clip(y[sel], low, top)
+            ax.scatter(
+                x[sel], yk, color=color, marker=marker, s=22, zorder=3, clip_on=False, label=label
+            )
+            handles.append(
+                Line2D([], [], color=color, marker=marker, ls="", markersize=5, label=label)
+            )
+        above = plotted & (y > top)
+        if above.any():
+            label = f"beyond the axis ({int(above.sum())}): |estimate| / spread > {top:.0e}"
+            ax.scatter(x[above], np.full(above.sum(), top), color="k", marker=6, s=40,
+                       zorder=4, clip_on=False, label=label)  # fmt: skip
+            handles.append(Line2D([], [], color="k", marker=6, ls="", label=label))
+        if spread is not None:
+            ax.axhline(
+                2.0, color="C3", lw=0.9, ls="--", label="2 spreads: below it, not told from 0"
+            )
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    color="C3",
+                    lw=0.9,
+                    ls="--",
+                    label="2 spreads: below it, not told from 0",
+                )
+            )
+        silent = ~excited
+        if silent.any():
+            label = f"not excited ({int(silent.sum())}): zero regressor column, no data"
+            ax.scatter(x[silent], np.full(silent.sum(), foot), color="0.55", marker="x", s=18,
+                       zorder=3, label=label)  # fmt: skip
+            handles.append(Line2D([], [], color="0.55", marker="x", ls="", label=label))
+        flagged = excited & bad
+        if flagged.any():
+            label = f"undetermined ({int(flagged.sum())}): beyond any physical scale"
+            ax.scatter(x[flagged], np.full(flagged.sum(), foot), color="k", marker="$?$", s=30,
+                       zorder=3, label=label)  # fmt: skip
+            handles.append(Line2D([], [], color="k", marker="$?$", ls="", label=label))
+        rel = np.array([np.nan if r["relevance"] is None else r["relevance"] for r in rows])
+        if np.isfinite(rel).any():
+            median = np.nanmedian(rel[excited]) if excited.any() else np.nanmedian(rel)
+            called = excited & np.isfinite(rel) & (rel > 100 * median)
+            label = (
+                f"called irrelevant by Bayesian JFA ({int(called.sum())}): <alpha> > 100 x median"
+            )
+            if called.any():
+                at = np.where(plotted, np.clip(y, low, top), foot)[called]
+                ax.scatter(x[called], at, facecolors="none",
+                           edgecolors="k", s=90, lw=1.0, zorder=4, label=label)  # fmt: skip
+            handles.append(
+                Line2D([], [], color="k", marker="o", mfc="none", ls="", markersize=8, label=label)
+            )
+        ax.set_yscale("log")
+        ax.set_ylim(low, top)
+        ax.set_xlim(-0.7, n - 0.3)
+        ax.set_xticks(
+            [(first + stop - 1) / 2 for _, first, stop in groups],
+            [body for body, _, _ in groups],
+            rotation=30 if len(groups) > 10 else 0,
+            ha="right" if len(groups) > 10 else "center",
+            fontsize=8,
+        )
+        ax.tick_params(axis="x", length=0)
+        ax.set_xlabel("parameters, grouped by the body each joint moves", fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(title, fontsize=9)
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
+                  frameon=False)  # fmt: skip
         if path is not None:
             fig.savefig(path, dpi=110)
         return fig
@@ -262,6 +552,7 @@ class IdentificationReport:
         """The report as Markdown (``images``: caption -> relative PNG path)."""
         s = self.summary()
         joints = self.model.joint_names
+        convergence, warning = _convergence(self.result.estimator)
         lines = [
             f"# Identification report: {s['robot'] or Path(self.model.source_path or 'robot').name}",
             "",
@@ -277,10 +568,15 @@ class IdentificationReport:
             f"{', '.join(self.model.friction) or 'none'}",
             f"- estimator: `{s['estimator']}`"
             + (
-                ""
-                if s["converged"]
-                else f" **did not converge** ({s['stop_reason']}): raise --max-iter"
+                "; input noise: "
+                + _NOISE_MODES.get(
+                    str(self.settings["input_noise"]), str(self.settings["input_noise"])
+                )
+                if self.settings.get("input_noise")
+                else ""
             ),
+            f"- convergence: {convergence}",
+            *([f"- {warning}"] if warning else []),
             f"- physically consistent, identified: {_verdict(self.consistency)}; "
             f"unconstrained estimate: {_verdict(self.consistency_unconstrained)}",
             f"- training RMS torque error: {s['train_rmse']:.4g} N m",
@@ -305,6 +601,11 @@ class IdentificationReport:
             f = self.fits[n]
             means += [f"**{f.mean_nmse:.4g}**", f"**{float(f.rms.pow(2).mean().sqrt()):.4g}**"]
         lines.append("| all | " + " | ".join(means) + " |")
+        lines += [
+            "",
+            "all: nMSE is the mean over the joints; RMS is the quadratic mean over the joints, "
+            "sqrt(mean of the squared per-joint RMS), in N m.",
+        ]
         lines += ["", "## Noise", ""]
         for k, v in self.noise.items():
             if isinstance(v, list):
@@ -327,25 +628,42 @@ class IdentificationReport:
             "|---|---|---|---|---|---|---|",
         ]
 
-        def fmt(v):
-            return "-" if v is None else f"{v:.4g}"
-
-        for row in s["parameters"]:
-            lines.append(
-                f"| {row['parameter']} | "
-                + " | ".join(
-                    fmt(row[k])
-                    for k in (
-                        "identified",
-                        "unconstrained",
-                        "jackknife_std",
-                        "posterior_std",
-                        "relevance",
-                        "description",
-                    )
-                )
-                + " |"
-            )
+        rows = s["parameters"]
+        value_cols = ("identified", "unconstrained", "jackknife_std", "posterior_std")
+        flagged = self.undetermined_entries()
+        n_flagged = n_silent = 0
+        for i, row in enumerate(rows):
+            cells = []
+            for k in (*value_cols, "relevance", "description"):
+                v = row[k]
+                if not row["excited"] and k in ("unconstrained", "jackknife_std", "posterior_std"):
+                    cells.append("not excited" if k == "unconstrained" else "-")
+                elif k in flagged and bool(flagged[k][i]):
+                    cells.append("undetermined")
+                    n_flagged += 1
+                elif v is None:
+                    cells.append("-")
+                else:
+                    cells.append(f"{v:.4g}")
+            n_silent += not row["excited"]
+            lines.append(f"| {row['parameter']} | " + " | ".join(cells) + " |")
+        if n_silent:
+            lines += [
+                "",
+                f"not excited ({n_silent} parameters): the parameter's regressor column is zero "
+                "in the data (the motion does not move its torque), so the data say nothing "
+                "about it; its identified value is the projection's alone.",
+            ]
+        if n_flagged:
+            lines += [
+                "",
+                f"undetermined ({n_flagged} entries): a value or spread beyond any physical "
+                f"scale, more than {UNDETERMINED_FACTOR:.0e} times the largest |value| of that "
+                "kind in the description (at least 1 kg, kg m, kg m^2, N m s/rad or N m), or "
+                "not finite: the data do not determine this parameter, only combinations of it "
+                "with others. Read no physical meaning into the value; the held-out errors above "
+                "say how well the model predicts torques.",
+            ]
         if images:
             lines += ["", "## Figures", ""]
             for caption, rel in images.items():
@@ -401,7 +719,7 @@ class IdentificationReport:
             self.plot_parameters(paths["parameters_png"])
             images = {
                 "Held-out torques, measured and predicted": "torques.png",
-                "Parameters: value over spread, relevance": "parameters.png",
+                "Parameters: how many spreads each estimate lies from 0": "parameters.png",
             }
         with open(paths["json"], "w") as fh:
             json.dump(self.summary(), fh, indent=1, default=str)
