@@ -248,3 +248,40 @@ def test_markdown_prints_undetermined_not_unphysical_numbers(report, tmp_path):
         for cell in cells[1:5]:
             if cell not in ("undetermined", "not excited", "-"):
                 assert abs(float(cell)) <= bound
+
+
+def test_parameters_figure_without_any_spread_shows_the_identified_values(report, tmp_path):
+    import dataclasses
+
+    from torchjfa.estimators import OLS
+
+    r = dataclasses.replace(report.result, estimator=OLS(fit_intercept=False), theta_hat_std=None)
+    bare = dataclasses.replace(report, result=r)
+    fig = bare.plot_parameters(tmp_path / "p.png")
+    renderer = _drawn(fig)
+    (ax,) = fig.axes
+    assert ax.get_title().startswith("Identified parameters (no spread")
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert not any(t.startswith("2 spreads") for t in texts)  # no spread, no spread line
+    assert not any("Bayesian JFA" in t for t in texts)
+    assert _labels(ax) <= set(texts)
+    assert ax.get_legend().get_window_extent(renderer).x0 >= ax.get_window_extent(renderer).x1
+    lo, hi = ax.get_ylim()
+    theta = r.theta.abs()[bare.excited]
+    shown = theta[theta > 1e-12]  # the axis reaches down to 1e-12; 0 and below sit at its foot
+    assert lo <= float(shown.min()) and float(theta.max()) <= hi
+
+
+def test_estimator_line_says_how_the_input_noise_was_set(report):
+    import dataclasses
+
+    from torchjfa.estimators import OLS
+
+    bayes = dataclasses.replace(report, settings={"input_noise": "periods"})
+    line = next(x for x in bayes.markdown().splitlines() if x.startswith("- estimator:"))
+    assert line.endswith("; input noise: fixed to the spread between excitation periods")
+    ols = _with_estimator(bayes, OLS(fit_intercept=False))
+    line = next(x for x in ols.markdown().splitlines() if x.startswith("- estimator:"))
+    assert line.endswith("used in the projection's metric only")
+    line = next(x for x in report.markdown().splitlines() if x.startswith("- estimator:"))
+    assert "input noise" not in line.split("`")[-1]  # no settings: nothing said

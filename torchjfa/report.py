@@ -319,6 +319,16 @@ class IdentificationReport:
         return parameters_figure(self.parameter_rows(), self.undetermined_entries(), path)
 
     # ------------------------------------------------------------------------- writing
+    def _noise_mode(self) -> str:
+        """``"; input noise: ..."`` from the settings' input-noise mode ("" without one)."""
+        mode = self.settings.get("input_noise")
+        if not mode:
+            return ""
+        text = _NOISE_MODES.get(str(mode), str(mode))
+        if not hasattr(self.result.estimator, "input_noise"):  # OLS, ridge, ...: projection only
+            return f"; input noise ({text}) used in the projection's metric only"
+        return f"; input noise: {text}"
+
     def markdown(self, images: Mapping[str, str] | None = None) -> str:
         """The report as Markdown (``images``: caption -> relative PNG path)."""
         s = self.summary()
@@ -337,15 +347,7 @@ class IdentificationReport:
             ),
             f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
             f"{', '.join(self.model.friction) or 'none'}",
-            f"- estimator: `{s['estimator']}`"
-            + (
-                "; input noise: "
-                + _NOISE_MODES.get(
-                    str(self.settings["input_noise"]), str(self.settings["input_noise"])
-                )
-                if self.settings.get("input_noise")
-                else ""
-            ),
+            f"- estimator: `{s['estimator']}`" + self._noise_mode(),
             f"- convergence: {convergence}",
             *([f"- {warning}"] if warning else []),
             f"- physically consistent, identified: {_verdict(self.consistency)}; "
