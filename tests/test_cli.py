@@ -1,15 +1,18 @@
 """The torchjfa command: end to end on a simulated CSV log, and every bad input it must name."""
 
+import argparse
+import io
 import json
 import shutil
 import subprocess
 import sys
+import zipfile
 
 import numpy as np
 import pytest
 import torch
 
-from torchjfa.cli import main
+from torchjfa.cli import build_parser, main
 from torchjfa.data import read_log, write_log
 from torchjfa.io import load_identified, read_identified
 from torchjfa.report import torque_errors
@@ -263,3 +266,90 @@ def test_evaluate_prints_per_joint_errors(tmp_path, capsys, head_csv):
     code = main(["evaluate", str(out / "model.npz"), "--robot", "arm", "--quiet", "--no-control"])
     assert code == 2
     assert "are not the simulated arm's" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["truncated", "bit-flipped", "empty", "foreign"])
+def test_evaluate_on_a_damaged_or_foreign_model_file_prints_one_line(kind, tmp_path, capsys):
+    from torchjfa.dynamics import RigidBodyModel
+    from torchjfa.io import save_identified
+    from torchjfa.sim import model_path
+
+    head = RigidBodyModel.from_mjcf(model_path("head"))
+    good = tmp_path / "good.npz"
+    save_identified(good, head, head.nominal_theta)
+    blob = good.read_bytes()
+    bad = {
+        "truncated": blob[: len(blob) // 2],
+        "bit-flipped": None,
+        "empty": b"",
+        "foreign": None,
+    }[kind]
+    if kind == "bit-flipped":  # a byte in the middle of the first member's compressed data
+        n_name, n_extra = (int.from_bytes(blob[k : k + 2], "little") for k in (26, 28))
+        start = 30 + n_name + n_extra  # the first local header is at 0 and 30 bytes long
+        size = zipfile.ZipFile(io.BytesIO(blob)).infolist()[0].compress_size
+        b = bytearray(blob)
+        b[start + size // 2] ^= 0xFF  # the CRC-32 (or the deflate stream) catches it
+        bad = bytes(b)
+    elif kind == "foreign":
+        np.savez(tmp_path / "other.npz", q=np.zeros((3, 7)))
+        bad = (tmp_path / "other.npz").read_bytes()
+    path = tmp_path / "model.npz"
+    path.write_bytes(bad)
+    code = main(["evaluate", str(path), "--robot", "head", "--quiet", "--no-control"])
+    out = capsys.readouterr()
+    assert code == 2
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1, out.err
+    assert lines[0].startswith("torchjfa evaluate: error: ")
+    assert "not a torchjfa model file, or it is damaged" in lines[0]
+    assert "Traceback" not in out.err and out.out == ""
+
+
+def _option_blocks(help_text: str) -> dict[str, str]:
+    """Each option's entry in ``--help`` (its first line and the indented lines after it), by
+    the option's first name, with the line breaks of the wrapping removed."""
+    blocks: dict[str, list[str]] = {}
+    name = None
+    for line in help_text.splitlines():
+        if line.startswith("  -"):
+            name = line.split()[0].rstrip(",")
+            blocks[name] = [line]
+        elif name is not None and line.startswith("   "):
+            blocks[name].append(line)
+        else:
+            name = None
+    return {k: " ".join(" ".join(v).split()) for k, v in blocks.items()}
+
+
+def _shown(default) -> str:
+    if isinstance(default, tuple):
+        return ",".join(default)
+    return f"{default:g}" if isinstance(default, float) else str(default)
+
+
+def test_help_of_every_command_shows_every_default():
+    parser = build_parser()
+    (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert {"identify", "simulate", "evaluate"} <= set(commands.choices)
+    checked = 0
+    for name, sub in commands.choices.items():
+        blocks = _option_blocks(sub.format_help())
+        for action in sub._actions:
+            if not action.option_strings or action.help == argparse.SUPPRESS:
+                continue
+            block = blocks[action.option_strings[0]]
+            if action.nargs == 0:  # a flag: off unless given, and its help says what it does
+                assert len(block.split()) > 1, (name, action.option_strings)
+                continue
+            if action.default is None:
+                continue
+            assert f"(default: {_shown(action.default)})" in block, (name, block)
+            assert block.count("(default") == 1, (name, block)
+            checked += 1
+    assert checked >= 23  # 17 options with a default in identify, 3 in simulate, 3 in evaluate
+    identify = _option_blocks(commands.choices["identify"].format_help())
+    assert identify["--max-iter"].endswith("(default: 20000)")
+    assert identify["--friction"].endswith("(default: viscous)")
+    assert identify["--cutoff"].endswith("(default: 20)")
+    assert identify["--estimator"].endswith("(default: bayes-jfa)")

@@ -1,9 +1,11 @@
 """Saving and loading identified models: bitwise round trips, in this and in a fresh process."""
 
+import io
 import shutil
 import subprocess
 import sys
 import textwrap
+import zipfile
 
 import numpy as np
 import pytest
@@ -156,7 +158,82 @@ def test_bad_input_is_rejected(head, tmp_path):
     with pytest.raises(ValueError, match="NaN"):
         save_identified(tmp_path / "a.npz", head, torch.full((77,), float("nan")))
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
-    with pytest.raises(ValueError, match="not a torchjfa identified-model"):
+    with pytest.raises(ValueError, match="not a torchjfa model file"):
         load_identified(tmp_path / "other.npz")
     with pytest.raises(ValueError, match="format"):
         identified_from_dict({"theta": torch.zeros(3)})
+
+
+def _member_data(blob: bytes, name: str) -> tuple[int, int]:
+    """``(start, size)`` of a zip member's compressed bytes (after its local header)."""
+    info = zipfile.ZipFile(io.BytesIO(blob)).getinfo(name)
+    off = info.header_offset
+    n_name = int.from_bytes(blob[off + 26 : off + 28], "little")
+    n_extra = int.from_bytes(blob[off + 28 : off + 30], "little")
+    return off + 30 + n_name + n_extra, info.compress_size
+
+
+def corrupted(blob: bytes, kind: str) -> list[bytes]:
+    """Damaged or foreign versions of a valid model file's bytes ``blob``."""
+    if kind == "truncated":  # cut at several places: in the data, the directory, the end record
+        return [blob[:k] for k in (len(blob) // 3, len(blob) // 2, len(blob) - 30, len(blob) - 1)]
+    if kind == "bit-flipped":  # every bit of three bytes inside theta's deflate stream
+        # (CRC-32 detects any single-bit error in the data; the stream's first bit, BFINAL, and
+        # its last two bytes' padding bits may flip without changing the data, so not those)
+        start, size = _member_data(blob, "theta.npy")
+        out = []
+        for pos in (start + 1, start + size // 2, start + size - 3):
+            for bit in range(8):
+                b = bytearray(blob)
+                b[pos] ^= 1 << bit
+                out.append(bytes(b))
+        return out
+    if kind == "empty":
+        return [b""]
+    if kind == "foreign":  # another program's .npz, a .npy, a CSV, a zip of something else
+        npz, npy, other = io.BytesIO(), io.BytesIO(), io.BytesIO()
+        np.savez(npz, theta=np.zeros(77), x=np.arange(3))
+        np.save(npy, np.zeros(77))
+        with zipfile.ZipFile(other, "w") as z:
+            z.writestr("readme.txt", "not numpy")
+        partial = io.BytesIO()  # the format entry without the rest (a file cut by hand)
+        np.savez(partial, format=np.array("torchjfa.IdentifiedModel"), version=np.array(1))
+        csv = b"t,q_a,tau_a\n0,0,0\n"
+        return [npz.getvalue(), npy.getvalue(), other.getvalue(), partial.getvalue(), csv]
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("kind", ["truncated", "bit-flipped", "empty", "foreign"])
+def test_a_damaged_or_foreign_file_raises_one_clear_value_error(kind, head, tmp_path):
+    path = tmp_path / "model.npz"
+    save_identified(path, head, _perturbed_theta(head))
+    blob = path.read_bytes()
+    load_identified(path)  # the intact file loads
+    for i, bad in enumerate(corrupted(blob, kind)):
+        assert bad != blob
+        p = tmp_path / f"bad{i}.npz"
+        p.write_bytes(bad)
+        with pytest.raises(ValueError) as info:
+            load_identified(p)
+        msg = str(info.value)
+        assert type(info.value) is ValueError, type(info.value)
+        assert "\n" not in msg
+        assert repr(str(p)) in msg and "not a torchjfa model file, or it is damaged" in msg
+        assert "write it again" in msg
+        with pytest.raises(ValueError, match="not a torchjfa model file"):
+            read_identified(p)
+
+
+def test_a_missing_file_stays_file_not_found(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nowhere.npz"):
+        load_identified(tmp_path / "nowhere.npz")
+
+
+def test_a_stored_theta_of_the_wrong_shape_is_refused(head):
+    data = identified_to_dict(head, _perturbed_theta(head))
+    data["theta"] = data["theta"][:-1]
+    with pytest.raises(ValueError, match=r"shape \(76,\).*needs \(77,\)"):
+        identified_from_dict(data)
+    del data["theta"]
+    with pytest.raises(ValueError, match=r"\['theta'\] missing"):
+        identified_from_dict(data)

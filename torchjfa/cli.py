@@ -34,6 +34,39 @@ class UsageError(Exception):
     """Bad input from the user: printed as one line, exit status 2."""
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """``--help`` with every option's default, ``(default: X)``, after its help text (flags,
+    which are off unless given, and options without a default, say nothing)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (
+            not action.option_strings
+            or action.nargs == 0
+            or default is None
+            or default is argparse.SUPPRESS
+            or "%(default)" in text
+        ):
+            return text
+        if isinstance(default, (tuple, list)):
+            shown = ",".join(map(str, default)) or "none"
+        elif isinstance(default, float):
+            shown = f"{default:g}"
+        else:
+            shown = str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+class _Parser(argparse.ArgumentParser):
+    """An `argparse.ArgumentParser` whose help shows the defaults; its subcommands' parsers are
+    of the same class (``add_subparsers`` makes them so), and so show theirs."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
 # ------------------------------------------------------------------------------ helpers
 def _friction(text: str) -> tuple[str, ...]:
     if text.strip().lower() in ("", "none"):
@@ -314,7 +347,10 @@ def cmd_evaluate(args) -> int:
 
     if not os.path.isfile(args.model):
         raise UsageError(f"no model file {args.model!r}")
-    ident = read_identified(args.model)
+    try:
+        ident = read_identified(args.model)
+    except ValueError as exc:  # not a model file, or a damaged one: the message says which
+        raise UsageError(str(exc)) from None
     model, theta = ident.model, ident.theta
     log = generate_log(
         args.robot, n_samples=args.n_samples, seed=args.seed, progress=not args.quiet
@@ -363,7 +399,7 @@ def cmd_evaluate(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from .data import DEFAULT_CUTOFF_HZ
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="torchjfa",
         description="Probabilistic identification of robot dynamics (Bayesian joint factor "
         "analysis, physically consistent parameters).",
@@ -386,14 +422,13 @@ def build_parser() -> argparse.ArgumentParser:
         "log",
         help="the log: .csv, .npz or .parquet with columns t, q_<joint>, [qd_<joint>], tau_<joint>",
     )
-    p.add_argument("--out", default="result", help="output folder (default: result)")
-    p.add_argument("--estimator", choices=ESTIMATORS, default="bayes-jfa")
+    p.add_argument("--out", default="result", help="output folder")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="bayes-jfa", help="the estimator")
     p.add_argument(
         "--friction",
         type=_friction,
         default=("viscous",),
-        help="friction terms per joint, comma separated from viscous,coulomb,offset "
-        "or 'none' (default: viscous)",
+        help="friction terms per joint, comma separated from viscous,coulomb,offset or 'none'",
     )
     p.add_argument(
         "--columns",
@@ -405,7 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-scale",
         type=float,
         default=1.0,
-        help="seconds per unit of the time column (1e-9 for ns)",
+        help="seconds per unit of the time column, e.g. 1e-9 for ns",
     )
     p.add_argument(
         "--drop-nan",
@@ -416,14 +451,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--cutoff",
         type=float,
         default=DEFAULT_CUTOFF_HZ,
-        help=f"low-pass cut-off, Hz (default {DEFAULT_CUTOFF_HZ:g})",
+        help="low-pass cut-off, Hz",
     )
-    p.add_argument("--filter", choices=("butterworth", "savgol"), default="butterworth")
+    p.add_argument(
+        "--filter",
+        choices=("butterworth", "savgol"),
+        default="butterworth",
+        help="zero-phase low-pass filter: Butterworth (order 4) or Savitzky-Golay",
+    )
     p.add_argument(
         "--velocity",
         choices=("auto", "measured", "differentiate"),
         default="auto",
-        help="use the log's velocities or differentiate positions (default auto)",
+        help="use the log's velocities ('measured'), differentiate the positions, or 'auto': "
+        "the log's velocities if it has them",
     )
     p.add_argument(
         "--period",
@@ -435,14 +476,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--skip-start",
         type=_skip,
         default=0.0,
-        help="seconds of start-up transient to drop, or 'auto' (needs a period)",
+        help="seconds of start-up transient to drop, or 'auto', which needs a period",
     )
     p.add_argument("--decimate", type=int, default=1, help="keep every k-th sample after filtering")
     p.add_argument(
         "--validation",
         type=float,
         default=0.2,
-        help="held-out fraction at the end of the log (default 0.2)",
+        help="held-out fraction at the end of the log",
     )
     p.add_argument("--validation-log", default=None, help="hold out this log instead")
     p.add_argument(
@@ -451,30 +492,38 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="Bayesian JFA's input noise: fixed to the spread between excitation periods "
         "('periods'), learned ('learn': the seed's estimator, whose eq. 4 the data do not "
-        "identify), or 'auto' (default): periods when the training data hold two or more",
+        "identify), or 'auto': periods when the training data hold two or more",
     )
     p.add_argument(
         "--jackknife",
         type=int,
         default=5,
-        help="blocks for the jackknife spread of the parameters (0: off)",
+        help="blocks for the jackknife spread of the parameters, 0 for none",
     )
     p.add_argument(
         "--weighting",
         choices=("residual", "none"),
         default="residual",
         help="weight each joint's equations by its inverse residual variance from a first "
-        "least-squares fit (weighted least squares, default), or not at all",
+        "least-squares fit (weighted least squares), or not at all",
     )
-    p.add_argument("--parametrization", choices=("virtual", "log-cholesky"), default="virtual")
+    p.add_argument(
+        "--parametrization",
+        choices=("virtual", "log-cholesky"),
+        default="virtual",
+        help="the projection's parameters: the seed's virtual parameters (mass > 0, inertia "
+        "PSD) or log-Cholesky, fully consistent (triangle inequalities too)",
+    )
     p.add_argument("--no-project", action="store_true", help="skip the physical projection")
-    p.add_argument("--max-iter", type=int, default=20_000, help="EM iterations (JFA, Bayesian JFA)")
+    p.add_argument(
+        "--max-iter", type=int, default=20_000, help="most EM iterations of JFA and Bayesian JFA"
+    )
     p.add_argument(
         "--ard",
         choices=("shared", "output"),
         default="shared",
         help="Bayesian JFA's relevance prior: on both loadings (the paper) or on the output "
-        "loading alone (better with --input-noise; see BayesianJFA)",
+        "loading alone, better with --input-noise (see BayesianJFA)",
     )
     p.add_argument(
         "--compiled",
@@ -484,7 +533,7 @@ def build_parser() -> argparse.ArgumentParser:
         "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
         "found, else the torch path",
     )
-    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--smoke", action="store_true", help="quick check: the first seconds only")
     p.add_argument("--smoke-seconds", type=float, default=12.0, help=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -497,10 +546,10 @@ def build_parser() -> argparse.ArgumentParser:
         "sensor noise and write a log as a real robot would give it: t, q_<joint>, "
         "qd_<joint>, tau_<joint> (no accelerations).",
     )
-    p.add_argument("robot", choices=_SIM_ROBOTS)
+    p.add_argument("robot", choices=_SIM_ROBOTS, help="the simulated robot")
     p.add_argument("--out", required=True, help="output: .csv, .npz or .parquet")
-    p.add_argument("--n-samples", type=int, default=50_000)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-samples", type=int, default=50_000, help="samples at the control rate")
+    p.add_argument("--seed", type=int, default=0, help="seed of the excitation and the noise")
     p.add_argument("--noise-scale", type=float, default=1.0, help="x the default sensor noise")
     p.add_argument(
         "--no-unmodeled",
@@ -523,13 +572,15 @@ def build_parser() -> argparse.ArgumentParser:
         "robot and run computed-torque control with the model in MuJoCo.",
     )
     p.add_argument("model", help="model.npz written by identify")
-    p.add_argument("--robot", choices=_SIM_ROBOTS, required=True)
-    p.add_argument("--n-samples", type=int, default=8400)
-    p.add_argument("--seed", type=int, default=100)
+    p.add_argument("--robot", choices=_SIM_ROBOTS, required=True, help="the simulated robot")
+    p.add_argument("--n-samples", type=int, default=8400, help="samples of the test trajectory")
+    p.add_argument("--seed", type=int, default=100, help="seed of the test trajectory")
     p.add_argument("--no-control", action="store_true", help="skip the control run")
-    p.add_argument("--control-seconds", type=float, default=4.0)
+    p.add_argument(
+        "--control-seconds", type=float, default=4.0, help="duration of the control run, s"
+    )
     p.add_argument("--json", default=None, help="also write the numbers to this JSON file")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
     return parser
 

@@ -54,6 +54,10 @@ __all__ = [
 _FORMAT = "torchjfa.IdentifiedModel"
 _VERSION = 1
 _EXTRA = "extra_"
+_REQUIRED = frozenset(
+    ("format", "version", "library_version", "source_format", "source_path", "source_xml")
+    + ("gravity", "friction", "joint_names", "parameter_names", "theta")
+)
 
 
 def _library_version() -> str:
@@ -177,6 +181,9 @@ def identified_from_dict(data: dict) -> IdentifiedModel:
     """
     if not isinstance(data, dict) or data.get("format") != _FORMAT:
         raise ValueError("not a torchjfa identified model (missing or wrong 'format' entry)")
+    missing = sorted(_REQUIRED - set(data))
+    if missing:
+        raise ValueError(f"not a complete torchjfa identified model: {missing} missing")
     if int(data["version"]) != _VERSION:
         raise ValueError(f"unsupported identified-model version {int(data['version'])}")
     model = _build_model(
@@ -193,6 +200,11 @@ def identified_from_dict(data: dict) -> IdentifiedModel:
             f"({len(model.parameter_names)} vs {len(names)} parameters)"
         )
     theta = torch.as_tensor(data["theta"]).clone()
+    if tuple(theta.shape) != (model.n_params,) or not theta.is_floating_point():
+        raise ValueError(
+            f"the stored theta has shape {tuple(theta.shape)} and dtype {theta.dtype}; the "
+            f"stored description needs ({model.n_params},) floating point"
+        )
     return IdentifiedModel(
         model=model,
         theta=theta,
@@ -239,12 +251,40 @@ def read_identified(path: str | os.PathLike) -> IdentifiedModel:
 
     Raises:
         FileNotFoundError: if the file does not exist.
-        ValueError: if it is not an identified-model file of a known version.
+        ValueError: if it is not an identified-model file of a known version, or a damaged one
+            (truncated, empty, bit-flipped, another program's file): one message that names the
+            file, the reason and what to do, whatever the archive reader raised.
     """
-    with np.load(os.fspath(path), allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no model file {path!r}")
+    try:
+        return identified_from_dict(_read_arrays(path))
+    except (FileNotFoundError, IsADirectoryError, PermissionError):
+        raise
+    except Exception as exc:  # a damaged archive raises many kinds (zip, zlib, npy header, ...)
+        reason = " ".join(str(exc).split())[:200]  # one line, whatever the reader said
+        if type(exc) is not ValueError:
+            reason = f"{type(exc).__name__}: {reason}" if reason else type(exc).__name__
+        raise ValueError(
+            f"{path!r} is not a torchjfa model file, or it is damaged ({reason}); write it "
+            "again with `torchjfa identify ... --out DIR` or torchjfa.io.save_identified"
+        ) from exc
+
+
+def _read_arrays(path: str) -> dict[str, object]:
+    """The archive's arrays as `identified_from_dict`'s dict (raises whatever the reader does)."""
+    with open(path, "rb") as fh:  # ours to close, also when the archive reader fails
+        magic = fh.read(4)
+        if not magic:
+            raise ValueError("the file is empty")
+        if magic not in (b"PK\x03\x04", b"PK\x05\x06"):  # a zip archive's first record
+            raise ValueError(f"not an .npz (zip) archive: it starts with {magic!r}")
+        fh.seek(0)
+        with np.load(fh, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
     if "format" not in arrays or str(arrays["format"]) != _FORMAT:
-        raise ValueError(f"{os.fspath(path)!r} is not a torchjfa identified-model file")
+        raise ValueError("no 'format' entry naming a torchjfa identified model")
     data: dict[str, object] = {"extras": {}}
     for key, arr in arrays.items():
         if key.startswith(_EXTRA):
@@ -258,7 +298,7 @@ def read_identified(path: str | os.PathLike) -> IdentifiedModel:
             data[key] = int(arr)
         else:
             data[key] = torch.from_numpy(arr)
-    return identified_from_dict(data)
+    return data
 
 
 def load_identified(path: str | os.PathLike, *, trainable: bool = False) -> InverseDynamics:
@@ -270,5 +310,9 @@ def load_identified(path: str | os.PathLike, *, trainable: bool = False) -> Inve
 
     Returns:
         ``InverseDynamics(model, theta)`` giving bitwise the torques of the saved model.
+
+    Raises:
+        FileNotFoundError: if the file does not exist.
+        ValueError: if the file is not a torchjfa model file or is damaged (`read_identified`).
     """
     return read_identified(path).inverse_dynamics(trainable=trainable)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ._report_figures import _kind, parameters_figure, torques_figure
 from .data import JointLog
 from .physical import ConsistencyReport, check
 from .pipeline import IdentificationResult
@@ -40,6 +41,9 @@ __all__ = [
     "make_report",
     "predicted_torques",
     "torque_errors",
+    "estimator_text",
+    "undetermined",
+    "UNDETERMINED_FACTOR",
 ]
 
 
@@ -96,18 +100,88 @@ def _numbers(v) -> list:
     return out
 
 
-def _figure(path, rows: int, **kw):
-    """A figure with ``rows`` stacked axes: through pyplot for display, or, when it is only
-    saved to ``path``, a bare `matplotlib.figure.Figure` (pyplot's backend is left alone, so
-    inline figures in a notebook keep working)."""
-    if path is None:
-        import matplotlib.pyplot as plt
+def _setting(value) -> str:
+    """One estimator setting, short: a per-column tensor as its size and median, not its
+    entries."""
+    if isinstance(value, (torch.Tensor, np.ndarray)):
+        v = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
+        if v.numel() == 1:
+            return f"{float(v):.4g}"
+        zeros = int((v == 0).sum())
+        text = f"given: {v.numel()} columns, median {float(v.median()):.2g}"
+        return "(" + text + (f", {zeros} of them 0" if zeros else "") + ")"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return repr(value)
 
-        return plt.subplots(rows, 1, squeeze=False, **kw)
-    from matplotlib.figure import Figure
 
-    fig = Figure(figsize=kw.pop("figsize"))
-    return fig, fig.subplots(rows, 1, squeeze=False, **kw)
+def estimator_text(est) -> str:
+    """The estimator's name and settings on one line, e.g. ``BayesianJFA(max_iter=20000, ...,
+    input_noise=(given: 84 columns, median 0.00031, 10 of them 0))``: arrays summarised (`repr`
+    would print every entry)."""
+    params = ", ".join(
+        f"{k}={_setting(v)}" for k, v in vars(est).items() if not k.endswith("_") and k[0] != "_"
+    )
+    return f"{type(est).__name__}({params})"
+
+
+_NOISE_MODES = {
+    "periods": "fixed to the spread between excitation periods",
+    "learn": "learned by the estimator",
+}
+
+
+def _convergence(est) -> tuple[str, str | None]:
+    """``(line, warning)``: the estimator's iterations and whether its stopping rule held, and a
+    warning when it did not (None when it did or the estimator is not iterative)."""
+    name = type(est).__name__
+    if not hasattr(est, "converged_"):
+        if hasattr(est, "n_iter_"):
+            return f"{int(est.n_iter_)} iterations (no convergence flag)", None
+        return "closed form (no iterations)", None
+    n_iter = int(getattr(est, "n_iter_", -1))
+    reason = getattr(est, "stop_reason_", None)
+    if est.converged_:
+        return f"{n_iter} iterations, converged: yes (stopping rule: {reason})", None
+    cap = getattr(est, "max_iter", None)
+    return (
+        f"{n_iter} iterations, converged: **no** (stopped by {reason})",
+        f"**Warning: {name} did not converge**: it stopped at its iteration cap"
+        + (f" (max_iter={cap})" if cap is not None else "")
+        + " before its stopping rule held, so its estimates may be far from the optimum; "
+        "compare the held-out errors with `--estimator ols`, or raise `--max-iter`.",
+    )
+
+
+# the unit value of each parameter kind (kg, kg m, kg m^2, N m s/rad, N m): a floor under the
+# description's scale, so that a description with (near-)zero masses still has a scale
+_UNIT_SCALE = 1.0
+UNDETERMINED_FACTOR = 1e6  # |value| above this x the kind's scale is beyond any physical scale
+
+
+def undetermined(values, names, description) -> torch.Tensor:
+    """Which ``values`` lie beyond any physical scale: not finite, or larger in magnitude than
+    `UNDETERMINED_FACTOR` times their kind's scale, the largest ``|description|`` value of that
+    kind (at least 1 in SI units, so that a description with near-zero masses does not make
+    every value look unphysical).
+
+    Args:
+        values: ``(n_params,)`` values (unconstrained estimates, spreads), NaN allowed.
+        names: the ``n_params`` parameter names (``joint.m``, ``joint.Ixx``, ``joint.fv``, ...).
+        description: ``(n_params,)`` the description's parameters.
+
+    Returns:
+        ``(n_params,)`` bool, True where the value should read "undetermined".
+    """
+    v = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
+    d = torch.as_tensor(description, dtype=torch.float64).reshape(-1).abs()
+    kinds = [_kind(n) for n in names]
+    scale = {k: _UNIT_SCALE for k in kinds}
+    for k, x in zip(kinds, d.tolist(), strict=True):
+        if math.isfinite(x):
+            scale[k] = max(scale[k], x)
+    bound = torch.tensor([UNDETERMINED_FACTOR * scale[k] for k in kinds], dtype=torch.float64)
+    return ~torch.isfinite(v) | (v.abs() > bound)
 
 
 def _verdict(c: ConsistencyReport) -> str:
@@ -149,9 +223,16 @@ class IdentificationReport:
     def model(self):
         return self.result.model
 
-    def parameter_rows(self) -> list[dict[str, object]]:
-        """One dict per parameter: name, identified, unconstrained, jackknife_std,
-        posterior_std, relevance, description (None where not available)."""
+    @property
+    def excited(self) -> torch.Tensor:
+        """``(n_params,)`` bool: the parameter's regressor column is not zero in the training
+        data. Where it is, the data say nothing about the parameter (its unconstrained value
+        is 0 by convention and the identified one comes from the projection alone)."""
+        return torch.diagonal(self.result.moments.xtx) > 0
+
+    def _columns(self) -> dict[str, torch.Tensor | None]:
+        """The parameter table's columns as float64 tensors (NaN and inf kept), None where the
+        estimator has no such column."""
         r = self.result
         est = r.estimator
         cols = {
@@ -162,11 +243,35 @@ class IdentificationReport:
             "relevance": getattr(est, "relevance_", None),
             "description": self.model.nominal_theta,
         }
-        cols = {k: None if v is None else _numbers(v) for k, v in cols.items()}
+        return {
+            k: None if v is None else torch.as_tensor(v, dtype=torch.float64).reshape(-1).cpu()
+            for k, v in cols.items()
+        }
+
+    def undetermined_entries(self) -> dict[str, torch.Tensor]:
+        """Column -> ``(n_params,)`` bool: where the identified value, the unconstrained value
+        or a spread lies beyond any physical scale or is not finite (`undetermined`); only the
+        columns the estimator has."""
+        cols = self._columns()
+        names = self.model.parameter_names
+        nominal = cols["description"]
+        return {
+            k: undetermined(cols[k], names, nominal)
+            for k in ("identified", "unconstrained", "jackknife_std", "posterior_std")
+            if cols[k] is not None
+        }
+
+    def parameter_rows(self) -> list[dict[str, object]]:
+        """One dict per parameter: name, identified, unconstrained, jackknife_std,
+        posterior_std, relevance, description (None where not available), excited (see
+        `excited`)."""
+        cols = {k: None if v is None else _numbers(v) for k, v in self._columns().items()}
+        excited = self.excited.tolist()
         rows = []
         for i, name in enumerate(self.model.parameter_names):
             row: dict[str, object] = {"parameter": name}
             row.update({k: None if v is None else v[i] for k, v in cols.items()})
+            row["excited"] = bool(excited[i])
             rows.append(row)
         return rows
 
@@ -177,11 +282,12 @@ class IdentificationReport:
             "robot": self.settings.get("robot"),
             "joint_names": list(self.model.joint_names),
             "n_params": self.model.n_params,
-            "estimator": repr(r.estimator),
+            "estimator": estimator_text(r.estimator),
             "train_samples": r.n_samples,
             "validation_samples": self.validation.n_samples,
             "train_rmse": r.rmse(),
             "converged": bool(getattr(r.estimator, "converged_", True)),
+            "n_iter": int(r.estimator.n_iter_) if hasattr(r.estimator, "n_iter_") else None,
             "stop_reason": getattr(r.estimator, "stop_reason_", None),
             "validation": {
                 name: {"nmse": _numbers(f.nmse), "rms": _numbers(f.rms), "mean_nmse": f.mean_nmse}
@@ -198,70 +304,36 @@ class IdentificationReport:
 
     # ------------------------------------------------------------------------- figures
     def plot_torques(self, path=None, *, seconds: float | None = 10.0):
-        """Measured and predicted held-out torque per joint (the first ``seconds``)."""
-        log = self.validation
-        t = (log.t - log.t[0]).numpy()
-        n = log.n_samples if seconds is None else int(np.searchsorted(t, seconds, side="right"))
-        n = max(n, 2)
-        n_dof = log.n_dof
-        fig, axes = _figure(path, n_dof, figsize=(9, 1.7 * n_dof + 0.6), sharex=True)
-        styles = {
-            "identified": {"color": "C1", "lw": 1.2},
-            "unconstrained": {"color": "C2", "lw": 0.9, "ls": "--"},
-            "description": {"color": "C7", "lw": 0.9, "ls": ":"},
-        }
-        for j, ax in enumerate(axes[:, 0]):
-            ax.plot(t[:n], log.tau[:n, j].numpy(), color="k", lw=0.8, label="measured")
-            for name, fit in self.fits.items():
-                label = f"{name} (nMSE {float(fit.nmse[j]):.3g})"
-                ax.plot(t[:n], fit.predicted[:n, j].numpy(), label=label, **styles.get(name, {}))
-            ax.set_ylabel(f"{log.joint_names[j]}\n[N m]", fontsize=8)
-            ax.legend(fontsize=6, loc="upper right", ncol=4)
-        axes[-1, 0].set_xlabel("time into the held-out data [s]")
-        fig.suptitle("Held-out torque: measured and predicted", fontsize=10)
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=110)
-        return fig
+        """Measured and predicted held-out torque per joint (the first ``seconds``): one axes
+        per joint titled with each prediction's nMSE, one legend below the axes
+        (`torchjfa._report_figures.torques_figure`). Returns the `matplotlib.figure.Figure`,
+        written to ``path`` when given."""
+        kinds = dict(zip(self.model.joint_names, self.model.joint_types, strict=True))
+        return torques_figure(self.validation, self.fits, kinds, path, seconds=seconds)
 
     def plot_parameters(self, path=None):
-        """Per parameter: |value| over its jackknife spread, and the relevance when known."""
-        rows = self.parameter_rows()
-        names = [r["parameter"] for r in rows]
-        x = np.arange(len(rows))
-        panels = []
-        if self.result.theta_hat_std is not None:
-            ratio = [
-                abs(r["unconstrained"]) / r["jackknife_std"] if r["jackknife_std"] else np.nan
-                for r in rows
-            ]
-            panels.append(("|unconstrained| / jackknife std", ratio, 2.0))
-        if any(r["relevance"] is not None for r in rows):
-            rel = [np.nan if r["relevance"] is None else r["relevance"] for r in rows]
-            panels.append(("relevance <alpha> (large: irrelevant)", rel, None))
-        if not panels:
-            panels.append(("|identified|", [abs(r["identified"]) for r in rows], None))
-        width = max(8, 0.12 * len(rows))
-        fig, axes = _figure(path, len(panels), figsize=(width, 2.6 * len(panels)))
-        for ax, (title, vals, line) in zip(axes[:, 0], panels, strict=True):
-            vals = np.asarray(vals, dtype=float)
-            ax.bar(x, np.where(np.isfinite(vals) & (vals > 0), vals, np.nan), color="C0")
-            ax.set_yscale("log")
-            ax.set_title(title, fontsize=9)
-            if line is not None:
-                ax.axhline(line, color="C3", lw=0.8, ls="--")
-            ax.set_xticks(x, names, rotation=90, fontsize=5)
-            ax.set_xlim(-1, len(rows))
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=110)
-        return fig
+        """How far each unconstrained estimate lies from 0 in its spreads, grouped by body,
+        every mark explained in a legend right of the axes
+        (`torchjfa._report_figures.parameters_figure`). Returns the `matplotlib.figure.Figure`,
+        written to ``path`` when given."""
+        return parameters_figure(self.parameter_rows(), self.undetermined_entries(), path)
 
     # ------------------------------------------------------------------------- writing
+    def _noise_mode(self) -> str:
+        """``"; input noise: ..."`` from the settings' input-noise mode ("" without one)."""
+        mode = self.settings.get("input_noise")
+        if not mode:
+            return ""
+        text = _NOISE_MODES.get(str(mode), str(mode))
+        if not hasattr(self.result.estimator, "input_noise"):  # OLS, ridge, ...: projection only
+            return f"; input noise ({text}) used in the projection's metric only"
+        return f"; input noise: {text}"
+
     def markdown(self, images: Mapping[str, str] | None = None) -> str:
         """The report as Markdown (``images``: caption -> relative PNG path)."""
         s = self.summary()
         joints = self.model.joint_names
+        convergence, warning = _convergence(self.result.estimator)
         lines = [
             f"# Identification report: {s['robot'] or Path(self.model.source_path or 'robot').name}",
             "",
@@ -275,12 +347,9 @@ class IdentificationReport:
             ),
             f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
             f"{', '.join(self.model.friction) or 'none'}",
-            f"- estimator: `{s['estimator']}`"
-            + (
-                ""
-                if s["converged"]
-                else f" **did not converge** ({s['stop_reason']}): raise --max-iter"
-            ),
+            f"- estimator: `{s['estimator']}`" + self._noise_mode(),
+            f"- convergence: {convergence}",
+            *([f"- {warning}"] if warning else []),
             f"- physically consistent, identified: {_verdict(self.consistency)}; "
             f"unconstrained estimate: {_verdict(self.consistency_unconstrained)}",
             f"- training RMS torque error: {s['train_rmse']:.4g} N m",
@@ -305,6 +374,11 @@ class IdentificationReport:
             f = self.fits[n]
             means += [f"**{f.mean_nmse:.4g}**", f"**{float(f.rms.pow(2).mean().sqrt()):.4g}**"]
         lines.append("| all | " + " | ".join(means) + " |")
+        lines += [
+            "",
+            "all: nMSE is the mean over the joints; RMS is the quadratic mean over the joints, "
+            "sqrt(mean of the squared per-joint RMS), in N m.",
+        ]
         lines += ["", "## Noise", ""]
         for k, v in self.noise.items():
             if isinstance(v, list):
@@ -327,25 +401,42 @@ class IdentificationReport:
             "|---|---|---|---|---|---|---|",
         ]
 
-        def fmt(v):
-            return "-" if v is None else f"{v:.4g}"
-
-        for row in s["parameters"]:
-            lines.append(
-                f"| {row['parameter']} | "
-                + " | ".join(
-                    fmt(row[k])
-                    for k in (
-                        "identified",
-                        "unconstrained",
-                        "jackknife_std",
-                        "posterior_std",
-                        "relevance",
-                        "description",
-                    )
-                )
-                + " |"
-            )
+        rows = s["parameters"]
+        value_cols = ("identified", "unconstrained", "jackknife_std", "posterior_std")
+        flagged = self.undetermined_entries()
+        n_flagged = n_silent = 0
+        for i, row in enumerate(rows):
+            cells = []
+            for k in (*value_cols, "relevance", "description"):
+                v = row[k]
+                if not row["excited"] and k in ("unconstrained", "jackknife_std", "posterior_std"):
+                    cells.append("not excited" if k == "unconstrained" else "-")
+                elif k in flagged and bool(flagged[k][i]):
+                    cells.append("undetermined")
+                    n_flagged += 1
+                elif v is None:
+                    cells.append("-")
+                else:
+                    cells.append(f"{v:.4g}")
+            n_silent += not row["excited"]
+            lines.append(f"| {row['parameter']} | " + " | ".join(cells) + " |")
+        if n_silent:
+            lines += [
+                "",
+                f"not excited ({n_silent} parameters): the parameter's regressor column is zero "
+                "in the data (the motion does not move its torque), so the data say nothing "
+                "about it; its identified value is the projection's alone.",
+            ]
+        if n_flagged:
+            lines += [
+                "",
+                f"undetermined ({n_flagged} entries): a value or spread beyond any physical "
+                f"scale, more than {UNDETERMINED_FACTOR:.0e} times the largest |value| of that "
+                "kind in the description (at least 1 kg, kg m, kg m^2, N m s/rad or N m), or "
+                "not finite: the data do not determine this parameter, only combinations of it "
+                "with others. Read no physical meaning into the value; the held-out errors above "
+                "say how well the model predicts torques.",
+            ]
         if images:
             lines += ["", "## Figures", ""]
             for caption, rel in images.items():
@@ -401,7 +492,7 @@ class IdentificationReport:
             self.plot_parameters(paths["parameters_png"])
             images = {
                 "Held-out torques, measured and predicted": "torques.png",
-                "Parameters: value over spread, relevance": "parameters.png",
+                "Parameters: how many spreads each estimate lies from 0": "parameters.png",
             }
         with open(paths["json"], "w") as fh:
             json.dump(self.summary(), fh, indent=1, default=str)
