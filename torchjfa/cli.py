@@ -180,6 +180,67 @@ def _enough(n_samples: int, model, where: str) -> None:
         )
 
 
+def _log_warnings(log, model) -> list[str]:
+    """`check_log` with the description's limits: fatal problems stop, the rest are returned."""
+    import numpy as np
+
+    from .data import check_log
+
+    limits = None
+    if model.chain is not None:
+        lo, hi = model.chain.get_joint_limits()
+        order = list(model.chain.get_joint_parameter_names())
+        if sorted(order) == sorted(model.joint_names):
+            lim = np.stack([np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)], axis=1)
+            limits = lim[[order.index(j) for j in model.joint_names]]
+    problems = check_log(log, limits=limits)
+    fatal = [p.message for p in problems if p.fatal]
+    if fatal:
+        raise UsageError(fatal[0])
+    return [p.message for p in problems]
+
+
+def _cap_period_noise(model, pnoise) -> tuple[object, list[str]]:
+    """Period noise of at least half a column's mean square (a column whose signal the spread
+    between periods swamps) capped at half of it, with a warning: the estimators refuse noise
+    at or above a column's variance, and de-attenuating such a column more than 2x amplifies
+    its noise."""
+    from dataclasses import replace
+
+    import torch
+
+    power = pnoise.column_power
+    noise = pnoise.input_noise
+    bad = (noise >= 0.5 * power) & (power > 1e-20 * power.max())  # not round-off columns
+    if not bool(bad.any()):
+        return pnoise, []
+    names = [model.layout.parameter_names[i] for i in bad.nonzero().flatten().tolist()]
+    shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+    capped = replace(pnoise, input_noise=torch.where(bad, 0.5 * power, noise))
+    return capped, [
+        f"the spread between periods is at least half the signal of {len(names)} regressor "
+        f"column(s) ({shown}): their input noise is capped at half their mean square; the "
+        "parameters they carry are barely determined by this log"
+    ]
+
+
+def _coverage_warnings(train, valid) -> list[str]:
+    """Where the held-out data move beyond the identification data (extrapolation)."""
+    from .data import coverage
+
+    lines = coverage(
+        (train.q, train.qd, train.qdd),
+        (valid.q, valid.qd, valid.qdd),
+        joint_names=train.joint_names,
+    ).warnings()
+    if not lines:
+        return []
+    return [
+        "the held-out data move beyond the identification data, so their errors measure "
+        "extrapolation: " + "; ".join(lines)
+    ]
+
+
 def cmd_identify(args) -> int:
     import torch
 
@@ -196,6 +257,7 @@ def cmd_identify(args) -> int:
     }
     log = read_log(args.log, **read).reorder(model.joint_names)
     _enough(log.n_samples, model, "the log has")
+    warnings = _log_warnings(log, model)
     prep = {
         "cutoff_hz": args.cutoff,
         "method": args.filter,
@@ -225,6 +287,9 @@ def cmd_identify(args) -> int:
     if train.period_samples is not None and train.n_samples >= 2 * train.period_samples:
         pnoise = regressor_noise(model, train, joint_weights=weights)
     input_noise = None
+    if pnoise is not None:
+        pnoise, capped = _cap_period_noise(model, pnoise)
+        warnings += capped
     mode = args.input_noise
     if mode == "auto":
         mode = "periods" if pnoise is not None else "learn"
@@ -281,6 +346,8 @@ def cmd_identify(args) -> int:
         "weighting": args.weighting,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
     }
+    warnings += _coverage_warnings(train, valid)
+    settings["warnings"] = warnings
     report = make_report(result, valid, period_noise=pnoise, settings=settings)
     paths = report.write(args.out, plots=not args.no_plots)
     fit = report.fits["identified"]
@@ -301,6 +368,15 @@ def cmd_identify(args) -> int:
             file=sys.stderr,
         )
     print(f"report: {paths['markdown']}")
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if not fit.mean_nmse < 1.0:  # NaN too
+        raise UsageError(
+            f"the identified model predicts the held-out torques worse than their mean (nMSE "
+            f"{fit.mean_nmse:.3g}): this log does not identify {args.robot} ({train.duration:.3g} s "
+            "of training data); record a longer or richer excitation (report written to "
+            f"{paths['markdown']})"
+        )
     return 0
 
 
@@ -428,7 +504,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--friction",
         type=_friction,
         default=("viscous",),
-        help="friction terms per joint, comma separated from viscous,coulomb,offset or 'none'",
+        help="joint terms, comma separated from viscous,coulomb,offset (friction) and armature "
+        "(reflected motor inertia), or 'none'",
     )
     p.add_argument(
         "--columns",

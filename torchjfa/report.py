@@ -350,6 +350,7 @@ class IdentificationReport:
             f"- estimator: `{s['estimator']}`" + self._noise_mode(),
             f"- convergence: {convergence}",
             *([f"- {warning}"] if warning else []),
+            *(f"- warning: {w}" for w in self.settings.get("warnings", ())),
             f"- physically consistent, identified: {_verdict(self.consistency)}; "
             f"unconstrained estimate: {_verdict(self.consistency_unconstrained)}",
             f"- training RMS torque error: {s['train_rmse']:.4g} N m",

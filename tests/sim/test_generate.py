@@ -199,6 +199,11 @@ def test_regressor_noise_with_joint_weights_is_that_of_the_weighted_rows():
                                          log.qdd[k * P : (k + 1) * P])[:, j] for k in range(3)])  # fmt: skip
         ref = Y.var(dim=0, correction=1).mean(0)  # (n_params,): joint j's rows alone
         torch.testing.assert_close(one, ref)
+        # the mean square of the weighted rows sqrt(w) Y: joint j's rows, times 7 / 7 joints
+        power = regressor_noise(model, log, joint_weights=w).column_power
+        torch.testing.assert_close(power, Y.pow(2).mean(dim=(0, 1)))
+    rows = model.regressor(log.q[: 3 * P], log.qd[: 3 * P], log.qdd[: 3 * P])
+    torch.testing.assert_close(plain.column_power, rows.reshape(-1, model.n_params).pow(2).mean(0))
 
 
 def test_sensor_noise_scaled_keeps_per_joint_values():

@@ -38,6 +38,8 @@ class PeriodNoise:
         signal_noise: per joint ``(n_dof,)`` variance of ``"q"``, ``"qd"``, ``"qdd"``.
         n_periods: whole periods used.
         period_samples: samples per period.
+        column_power: ``(n_params,)`` mean square of each regressor column over the same rows
+            (weighted as ``input_noise``): the noise of a column is only meaningful below it.
     """
 
     input_noise: torch.Tensor
@@ -46,6 +48,7 @@ class PeriodNoise:
     signal_noise: dict[str, torch.Tensor]
     n_periods: int
     period_samples: int
+    column_power: torch.Tensor | None = None
 
 
 def _permutation(model_names, log_names) -> list[int]:
@@ -122,7 +125,10 @@ def regressor_noise(
         if tuple(w.shape) != (n_dof,):
             raise ValueError(f"joint_weights must have shape ({n_dof},), got {tuple(w.shape)}")
         var = var * w[None, :, None]
+        mean = mean * w.sqrt()[None, :, None]
     input_noise = var.mean(dim=(0, 1))
+    # mean square over every row of the periods: mean^2 + (biased) variance at each phase
+    power = (mean * mean + var * ((n_per - 1) / n_per)).mean(dim=(0, 1))
     tau_var = tau.var(dim=0, correction=1).mean(dim=0)
     signal = {
         name: v.var(dim=0, correction=1).mean(dim=0)
@@ -135,4 +141,5 @@ def regressor_noise(
         signal_noise=signal,
         n_periods=n_per,
         period_samples=P,
+        column_power=power,
     )
