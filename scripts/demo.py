@@ -28,7 +28,7 @@ import torch
 import torchjfa
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA
-from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
+from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 from torchjfa.physical import check, project
 
 
@@ -151,11 +151,9 @@ if __name__ == "__main__":
     parser.add_argument("--seeds", default="0", help=seeds_help("0"))
     args = parser.parse_args()
     seeds = parse_seeds(args.seeds)
-    runs = {}
-    for seed in seeds:
-        if len(seeds) > 1:
-            print(f"\n=== seed {seed}")
-        runs[seed] = {r["method"]: r for r in run(smoke=args.smoke, seed=seed)["rows"]}
+    runs = for_each_seed(
+        seeds, lambda seed, _: {r["method"]: r for r in run(smoke=args.smoke, seed=seed)["rows"]}
+    )
     if len(seeds) > 1:
         print("\nprojected nMSE (held-out noiseless torques) over the seeds:")
         methods = list(runs[seeds[0]])

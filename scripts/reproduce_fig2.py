@@ -20,7 +20,7 @@ import json
 from pathlib import Path
 
 from torchjfa.experiments import fig2
-from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
+from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 
 
 def format_table(summary: list[dict]) -> str:
@@ -154,11 +154,9 @@ if __name__ == "__main__":
         report(rows, None, args.out)
     else:
         seeds = parse_seeds(args.seeds)
-        gains = {}
-        for seed in seeds:
-            if len(seeds) > 1:
-                print(f"\n=== seed {seed}", flush=True)
-            gains[seed] = run(
+        gains = for_each_seed(
+            seeds,
+            lambda seed, folder: run(
                 quick=args.quick,
                 n_trials=args.trials,
                 n_train=args.n_train,
@@ -170,8 +168,10 @@ if __name__ == "__main__":
                 if args.lasso_max_iter is None
                 else {"max_iter": args.lasso_max_iter},
                 seed=seed,
-                out=args.out if len(seeds) == 1 else args.out / f"seed_{seed}",
-            )["improvement"]
+                out=folder,
+            )["improvement"],
+            args.out,
+        )
         if len(seeds) > 1:
             print("\nbest Bayesian vs best other method over the seeds (clean test):")
             lines = summarize_seeds(gains)

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from torchjfa.experiments import robots as exp
-from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
+from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 
 NUMBERS = {"head": "I", "arm": "II"}  # the paper's table numbers
 
@@ -136,20 +136,20 @@ if __name__ == "__main__":
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args()
     seeds = parse_seeds(args.seeds)
-    runs = {}
-    for seed in seeds:
-        if len(seeds) > 1:
-            print(f"\n=== seed {seed}", flush=True)
-        runs[seed] = run(
+    runs = for_each_seed(
+        seeds,
+        lambda seed, folder: run(
             robots=tuple(args.robots),
             smoke=args.smoke,
             n_samples=args.n_samples,
             test_duration=args.test_duration,
             seed=seed,
-            out=args.out if len(seeds) == 1 else args.out / f"seed_{seed}",
+            out=folder,
             weighting=args.weighting,
             progress=not args.quiet,
-        )
+        ),
+        args.out,
+    )
     if len(seeds) > 1:
         print("\nover the seeds:")
         lines = summarize_seeds(runs)

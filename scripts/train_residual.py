@@ -3,6 +3,7 @@
     python scripts/train_residual.py                 # the full run (about 10 minutes on 2 CPUs)
     python scripts/train_residual.py --seeds 0-4     # five seeds: mean, spread and worst case
     python scripts/train_residual.py --smoke         # tiny sizes, a few seconds of training
+    python scripts/train_residual.py --identify-only --seeds 0-4   # the identified model alone
 
 Steps: simulate a training and a held-out test log of the 7-DoF head with its unmodeled effects
 on (armature, dry friction, joint stiffness), each on its own random excitation (a long period,
@@ -39,7 +40,7 @@ import torchjfa.io
 from torchjfa.data import coverage
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS
-from torchjfa.experiments.seeds import parse_seeds, seeds_help, summary_lines
+from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 from torchjfa.learning import ResidualDynamicsModule, StateTorqueDataset, log_tensors, nmse
 from torchjfa.pipeline import identify, residual_joint_weights
 from torchjfa.sim import generate_log, load_robot, model_path, random_trajectory
@@ -142,7 +143,7 @@ def run(
     for line in beyond:
         print(f"  test log beyond the training log's motion: {line}", flush=True)
     sizes = tuple(n for n in sizes if n <= n_train)
-    kinds = ("mlp", *(f"residual_{r}" for r in residuals))
+    kinds = ("mlp", *(f"residual_{r}" for r in residuals)) if residuals else ()
     curves = {k: {} for k in ("identified", *kinds)}
     t_id = t_train = 0.0
     for n in sizes:
@@ -185,8 +186,8 @@ def run(
         t_train += time.perf_counter() - t3
     n_full = sizes[-1]
     results = {k: c[n_full] for k, c in curves.items()}
-    best = min((k for k in kinds if k != "mlp"), key=lambda k: results[k])
-    reach = [n for n in sizes if curves[best][n] <= results["mlp"]]
+    best = min((k for k in kinds if k != "mlp"), key=lambda k: results[k], default=None)
+    reach = [n for n in sizes if best and curves[best][n] <= results["mlp"]]
     summary = {
         "robot": robot,
         "n_train": n_train,
@@ -200,13 +201,14 @@ def run(
         "nmse_at_full_data": results,
         "curves": {k: {str(n): v for n, v in c.items()} for k, c in curves.items()},
         "best_residual": best,
-        "residual_beats_both": results[best] < min(results["identified"], results["mlp"]),
+        "residual_beats_both": bool(best)
+        and results[best] < min(results["identified"], results["mlp"]),
         "smallest_n_residual_reaches_mlp_full": min(reach) if reach else None,
         "fraction_of_data": (min(reach) / n_full) if reach else None,
         "seconds": {"simulate": t_sim, "identify": t_id, "regressor": t_reg, "train": t_train},
     }
     (out / "results.json").write_text(json.dumps(summary, indent=2))
-    if plot:
+    if plot and kinds:
         _plot(summary, sizes, curves, out)
     return summary
 
@@ -247,6 +249,9 @@ def _print_one(s: dict) -> None:
     res = s["nmse_at_full_data"]
     best = s["best_residual"]
     print(f"held-out torque nMSE with {s['n_train']} training samples ({s['robot']}):")
+    if best is None:
+        print(f"  {_LABELS['identified']:28s} {res['identified']:.5f}")
+        return
     for k, v in res.items():
         print(f"  {_LABELS[k]:28s} {v:.5f}   ratio to {_LABELS[best]}: {v / res[best]:.2f}")
     print(f"{_LABELS[best]} beats both identified only and MLP only: {s['residual_beats_both']}")
@@ -271,14 +276,16 @@ def _print_seeds(runs: dict[int, dict], out: Path) -> dict:
     for seed, r in runs.items():
         vals = " | ".join(f"{r['nmse_at_full_data'][k]:14.4f}" for k in kinds)
         frac = r["fraction_of_data"]
-        print(f"{seed:4d} | {vals} | {'never' if frac is None else f'{frac:.0%} of the data'}")
+        reached = "-" if len(kinds) == 1 else "never" if frac is None else f"{frac:.0%} of the data"
+        print(f"{seed:4d} | {vals} | {reached}")
     lines = summary_lines(table)
     for line in lines:
         print(line)
     never = [seed for seed, r in runs.items() if r["fraction_of_data"] is None]
     beats = [seed for seed, r in runs.items() if r["residual_beats_both"]]
-    print(f"the best residual beats both identified only and MLP only on seeds {beats}")
-    if never:
+    if len(kinds) > 1:
+        print(f"the best residual beats both identified only and MLP only on seeds {beats}")
+    if never and len(kinds) > 1:
         print(f"the best residual never reaches MLP only's full-data error on seeds {never}")
     summary = {
         "seeds": list(runs),
@@ -312,6 +319,9 @@ def main() -> None:
         default="joint",
         help="residual networks on the identified model, comma-separated: joint, mlp",
     )
+    p.add_argument(
+        "--identify-only", action="store_true", help="the identified model alone, no networks"
+    )
     p.add_argument("--smoke", action="store_true", help="tiny sizes (a quick check)")
     args = p.parse_args()
     seeds = (args.seed,) if args.seed is not None else parse_seeds(args.seeds)
@@ -323,18 +333,20 @@ def main() -> None:
         weight_decay=args.weight_decay,
         min_harmonic=args.min_harmonic,
         friction=tuple(f.strip() for f in args.friction.split(",") if f.strip()),
-        residuals=tuple(r.strip() for r in args.residuals.split(",") if r.strip()),
+        residuals=()
+        if args.identify_only
+        else tuple(r.strip() for r in args.residuals.split(",") if r.strip()),
     )
     if args.smoke:
         kw.update(n_train=1000, n_test=500, steps=100, sizes=(100, 1000))
     out = Path(args.out_dir)
-    runs = {}
-    for seed in seeds:
-        folder = out if len(seeds) == 1 else out / f"seed_{seed}"
-        if len(seeds) > 1:
-            print(f"\n=== seed {seed}", flush=True)
-        runs[seed] = run(**kw, seed=seed, out_dir=str(folder))
-        _print_one(runs[seed])
+
+    def one(seed, folder):
+        result = run(**kw, seed=seed, out_dir=str(folder))
+        _print_one(result)
+        return result
+
+    runs = for_each_seed(seeds, one, out)
     if len(seeds) > 1:
         _print_seeds(runs, out)
 

@@ -34,3 +34,13 @@ def test_summarize_written_out():
     assert seeds.summarize({5: 1.0})["std"] == 0.0
     with pytest.raises(ValueError):
         seeds.summarize({})
+
+
+def test_for_each_seed_gives_each_run_its_folder(tmp_path, capsys):
+    calls = []
+    out = seeds.for_each_seed((3, 5), lambda s, f: calls.append((s, f)) or s * 10, tmp_path)
+    assert out == {3: 30, 5: 50}
+    assert calls == [(3, tmp_path / "seed_3"), (5, tmp_path / "seed_5")]
+    assert capsys.readouterr().out.count("=== seed") == 2
+    assert seeds.for_each_seed((7,), lambda s, f: f, tmp_path) == {7: tmp_path}
+    assert capsys.readouterr().out == ""

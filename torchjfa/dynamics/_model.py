@@ -18,6 +18,7 @@ import torch
 
 from .._notes import note
 from .._progress import progress_bar
+from .._threads import single_thread
 from .._validation import as_tensor, check_finite
 from ..stats import Moments
 from ._codegen import RegressorKernel
@@ -38,26 +39,6 @@ _DEFAULT_CHUNK = 1024
 _NUMPY_ALLOC_MIN = 1 << 20  # elements
 _NP_DTYPES = {torch.float64: np.float64, torch.float32: np.float32}
 _COMPILED_DTYPES = (torch.float64, torch.float32)
-
-
-@contextlib.contextmanager
-def _one_intra_op_thread(x: torch.Tensor):
-    """Run the torch path's many small CPU ops on one intra-op thread, then restore.
-
-    Each op of the eager regressor works on one chunk (a few thousand samples); splitting such
-    ops across threads gains little on an idle machine (0.54x vs 0.63x Pinocchio on 1 and 2
-    threads, docs/benchmarks.md) and collapses when the cores are busy (0.07x measured on a
-    loaded 2-core machine), because every op waits for its slowest thread.
-    """
-    threads = torch.get_num_threads()
-    if x.device.type != "cpu" or threads == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 @dataclass(frozen=True)
@@ -381,7 +362,7 @@ class RigidBodyModel:
         if kernel is not None:
             kernel(Y, q2, qd2, qdd2)  # writes every entry
         else:
-            with _one_intra_op_thread(q2):
+            with single_thread() if q2.device.type == "cpu" else contextlib.nullcontext():
                 regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # every entry
         return Y.reshape(shape) if out is None else out
 

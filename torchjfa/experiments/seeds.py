@@ -9,9 +9,17 @@ worst / best, so a claim that holds on some seeds only shows it.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
-__all__ = ["parse_seeds", "summarize", "format_summary", "summary_lines", "seeds_help"]
+__all__ = [
+    "parse_seeds",
+    "for_each_seed",
+    "summarize",
+    "format_summary",
+    "summary_lines",
+    "seeds_help",
+]
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
@@ -32,6 +40,21 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     if not seeds:
         raise ValueError(f"--seeds: no seed in {text!r}")
     return tuple(seeds)
+
+
+def for_each_seed(
+    seeds: Sequence[int], fn: Callable[[int, Path | None], object], out: Path | None = None
+) -> dict[int, object]:
+    """``{seed: fn(seed, folder)}`` in order. With one seed ``folder`` is ``out``; with several,
+    ``out / f"seed_{seed}"``, and a line ``=== seed N`` is printed before each run."""
+    results = {}
+    for seed in seeds:
+        folder = out
+        if len(seeds) > 1:
+            print(f"\n=== seed {seed}", flush=True)
+            folder = None if out is None else Path(out) / f"seed_{seed}"
+        results[seed] = fn(seed, folder)
+    return results
 
 
 def summarize(values: Mapping[int, float], *, lower_is_better: bool = True) -> dict:

@@ -5,13 +5,11 @@ Private: `project` documents the objective, the scaling and the stopping rule.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
-
 import torch
 from torch import nn
 
 from .._progress import progress_bar
+from .._threads import single_thread
 
 __all__ = ["Problem", "minimise", "single_thread", "theta_fn"]
 
@@ -58,25 +56,6 @@ _CYCLE = 25
 _FLOOR = 1e-3
 #: damping of the preconditioner, in units of the normalised objective's curvature
 _MU = 1e-4
-
-
-@contextmanager
-def single_thread() -> Iterator[None]:
-    """Run torch (and its BLAS) on one thread inside the block, then restore the setting.
-
-    The projection's matrices are about 100 x 100: BLAS threads cannot speed them up, and on a
-    busy machine their synchronisation makes a 100 x 100 matrix-vector product hundreds of
-    times slower (scikit-learn limits BLAS threads around such work for the same reason).
-    """
-    threads = torch.get_num_threads()
-    if threads == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 def theta_fn(module: nn.Module):
