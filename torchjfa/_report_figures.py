@@ -202,20 +202,17 @@ def parameters_figure(rows, flags, path=None):
             x[sel], yk, color=color, marker=marker, s=22, zorder=3, clip_on=False, label=label
         )
         handles.append(Line2D([], [], color=color, marker=marker, ls="", markersize=5, label=label))
+
+    def mark(where, at, label, color, marker, size, **kw):
+        """Scatter a marker at height ``at`` for the parameters ``where``, with a legend entry."""
+        ax.scatter(x[where], np.full(where.sum(), at), color=color, marker=marker, s=size,
+                   label=label, **kw)  # fmt: skip
+        handles.append(Line2D([], [], color=color, marker=marker, ls="", label=label))
+
     above = plotted & (y > top)
     if above.any():
         label = f"beyond the axis ({int(above.sum())}): above {top:.0e}"
-        ax.scatter(
-            x[above],
-            np.full(above.sum(), top),
-            color="k",
-            marker=6,
-            s=40,
-            zorder=4,
-            clip_on=False,
-            label=label,
-        )
-        handles.append(Line2D([], [], color="k", marker=6, ls="", label=label))
+        mark(above, top, label, "k", 6, 40, zorder=4, clip_on=False)
     if spread is not None:
         label = "2 spreads: below it, not told from 0"
         ax.axhline(2.0, color="C3", lw=0.9, ls="--", label=label)
@@ -223,29 +220,11 @@ def parameters_figure(rows, flags, path=None):
     silent = ~excited
     if silent.any():
         label = f"not excited ({int(silent.sum())}): zero regressor column, no data"
-        ax.scatter(
-            x[silent],
-            np.full(silent.sum(), foot),
-            color="0.55",
-            marker="x",
-            s=18,
-            zorder=3,
-            label=label,
-        )
-        handles.append(Line2D([], [], color="0.55", marker="x", ls="", label=label))
+        mark(silent, foot, label, "0.55", "x", 18, zorder=3)
     flagged = excited & bad
     if flagged.any():
         label = f"undetermined ({int(flagged.sum())}): beyond any physical scale"
-        ax.scatter(
-            x[flagged],
-            np.full(flagged.sum(), foot),
-            color="k",
-            marker="$?$",
-            s=30,
-            zorder=3,
-            label=label,
-        )
-        handles.append(Line2D([], [], color="k", marker="$?$", ls="", label=label))
+        mark(flagged, foot, label, "k", "$?$", 30, zorder=3)
     rel = np.array([np.nan if r["relevance"] is None else r["relevance"] for r in rows])
     if np.isfinite(rel).any():
         median = np.nanmedian(rel[excited]) if excited.any() else np.nanmedian(rel)
