@@ -27,7 +27,9 @@ def _numbers(text: str) -> list[float]:
     try:
         return [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers, got {text!r}"
+        ) from None
 
 
 def _box(text: str):
@@ -35,9 +37,7 @@ def _box(text: str):
 
     parts = text.split(":")
     if len(parts) != 3:
-        raise argparse.ArgumentTypeError(
-            f"expected FRAME:xlo,ylo,zlo:xhi,yhi,zhi, got {text!r}"
-        )
+        raise argparse.ArgumentTypeError(f"expected FRAME:xlo,ylo,zlo:xhi,yhi,zhi, got {text!r}")
     try:
         return WorkspaceBox(parts[0], _numbers(parts[1]), _numbers(parts[2]))
     except ValueError as exc:
@@ -80,7 +80,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--rate", type=float, default=None,
         help="output rate, Hz (default: 420 head, 480 arm, else 200); limits are checked at 10x",
     )  # fmt: skip
-    p.add_argument("--posture", type=_numbers, default=None, help="q0 per joint (default mid-range)")
+    p.add_argument(
+        "--posture", type=_numbers, default=None, help="q0 per joint (default mid-range)"
+    )
     p.add_argument("--position-margin", type=float, default=0.05, help="fraction of each range")
     p.add_argument("--velocity-limit", type=_numbers, default=None, help="rad/s, one or per joint")
     p.add_argument("--acceleration-limit", type=_numbers, default=None, help="rad/s^2")

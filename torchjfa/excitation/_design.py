@@ -291,7 +291,9 @@ def optimize_excitation(
     if optimizer not in ("lbfgs", "adam"):
         raise ValueError(f"optimizer must be 'lbfgs' or 'adam', got {optimizer!r}")
     if isinstance(harmonics, bool) or not isinstance(harmonics, int) or harmonics < 2:
-        raise ValueError(f"harmonics must be an int >= 2 (rest at t = 0 needs 2), got {harmonics!r}")
+        raise ValueError(
+            f"harmonics must be an int >= 2 (rest at t = 0 needs 2), got {harmonics!r}"
+        )
     f0 = float(base_frequency)
     if not f0 > 0 or not math.isfinite(f0):
         raise ValueError(f"base_frequency must be positive, got {base_frequency}")
@@ -313,7 +315,9 @@ def optimize_excitation(
         raise ValueError(f"posture must be {n} numbers (one per joint), got shape {q0.shape}")
     outside = [limits.joint_names[j] for j in range(n) if not lo[j] < q0[j] < hi[j]]
     if outside:
-        raise ValueError(f"the posture is outside the position limits (margin included) of {outside}")
+        raise ValueError(
+            f"the posture is outside the position limits (margin included) of {outside}"
+        )
     g = generator if generator is not None else torch.Generator()
     if generator is None and seed is not None:
         g.manual_seed(int(seed))
@@ -359,7 +363,7 @@ def optimize_excitation(
                         [a_raw, b_raw], lr=1.0, max_iter=max_iter, line_search_fn="strong_wolfe"
                     )
 
-                    def closure(rho=rho, opt=opt):
+                    def closure(rho=rho, opt=opt, a_raw=a_raw, b_raw=b_raw):
                         opt.zero_grad()
                         loss, _ = objective(a_raw, b_raw, rho)
                         if torch.isfinite(loss):

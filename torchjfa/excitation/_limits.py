@@ -159,7 +159,9 @@ def limits_from_model(
     if position is not None:
         pos = np.asarray(position, dtype=np.float64)
         if pos.shape != (n, 2):
-            raise ValueError(f"position must have shape ({n}, 2) (low, high per joint), got {pos.shape}")
+            raise ValueError(
+                f"position must have shape ({n}, 2) (low, high per joint), got {pos.shape}"
+            )
         lo, hi = pos[:, 0].copy(), pos[:, 1].copy()
     acc = np.full(n, math.inf)
     for arr, user, label in ((vel, velocity, "velocity"), (acc, acceleration, "acceleration"),
