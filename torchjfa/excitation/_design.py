@@ -220,15 +220,30 @@ def _penalty(viol: dict[str, torch.Tensor]) -> torch.Tensor:
     return sum((torch.relu(v + _SAFETY) ** 2).mean(0).sum() for v in viol.values())
 
 
-def _largest_feasible_scale(feasible, *, high: float = 1.0, steps: int = 10) -> float:
-    """The largest s in (0, high] with feasible(s), by bisection (feasible(0) assumed)."""
-    if feasible(high):
-        return high
-    lo, hi = 0.0, high
-    for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if feasible(mid) else (lo, mid)
-    return lo
+def _largest_feasible_scale(model, scaled, limits, rate, *, high: float = 1.0, theta=None):
+    """The largest s in (0, high] for which ``scaled(s)`` holds the limits on the fine grid.
+
+    Bisection (10 steps) on the output-rate grid, then the fine grid (10x the rate), backing
+    off by 2 % until it holds there too (0 when nothing does: the hard check then raises).
+    """
+
+    def feasible(s, refine):
+        m = check_limits(model, scaled(s), limits, rate=rate, refine=refine, theta=theta,
+                         raise_error=False)  # fmt: skip
+        return min(m.values()) >= 0.0
+
+    s = high
+    if not feasible(high, 1):
+        lo, hi = 0.0, high
+        for _ in range(10):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if feasible(mid, 1) else (lo, mid)
+        s = lo
+    for _ in range(20):
+        if s == 0.0 or feasible(s, 10):
+            return s
+        s *= 0.98
+    return 0.0
 
 
 def optimize_excitation(
@@ -394,11 +409,7 @@ def optimize_excitation(
                 best = (key, a.detach().clone(), b.detach().clone())
     traj = FourierTrajectory(f0, q0, best[1].numpy(), best[2].numpy(), model.joint_names)
 
-    def feasible(s):
-        m = check_limits(model, traj.scaled(s), limits, rate=rate, theta=theta, raise_error=False)
-        return min(m.values()) >= 0.0
-
-    shrink = _largest_feasible_scale(feasible)
+    shrink = _largest_feasible_scale(model, traj.scaled, limits, rate, theta=theta)
     if shrink < 1.0:
         traj = traj.scaled(shrink)
     # the hard check: raises with every violated limit if even the shrunk trajectory fails
@@ -456,12 +467,8 @@ def random_excitation(
             traj.base_frequency, traj.offset, traj.amplitude * s, traj.harmonic, traj.phase
         )
 
-    def feasible(s):
-        m = check_limits(model, scaled(s), limits, rate=rate, raise_error=False)
-        return min(m.values()) >= 0.0
-
     t = torch.arange(int(math.ceil(traj.period * rate * 10)), dtype=torch.float64) / (10 * rate)
     q = traj(t)[0].numpy()
     half = 0.5 * (limits.position_high - limits.position_low)
     high = float(np.min(half / np.abs(q - traj.offset).max(0)))
-    return scaled(_largest_feasible_scale(feasible, high=high))
+    return scaled(_largest_feasible_scale(model, scaled, limits, rate, high=high))
