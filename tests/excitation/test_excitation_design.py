@@ -170,3 +170,30 @@ def test_random_baseline_is_inside_the_same_limits_and_worse():
     opt = trajectory_information(model, res.trajectory, res.basis)
     base = trajectory_information(model, rnd, res.basis)
     assert opt["d"] < base["d"]
+
+
+def test_limits_read_from_the_urdf_with_margin_and_overrides():
+    model = _model("panda")
+    limits = limits_from_model(model, position_margin=0.1, torque={"panda_joint7": 5.0})
+    # panda_arm.urdf: joint1 lower -2.8973 upper 2.8973 velocity 2.175 effort 87; joint7 effort 12
+    span = 2 * 2.8973
+    assert limits.position_low[0] == pytest.approx(-2.8973 + 0.1 * span, abs=1e-12)
+    assert limits.position_high[0] == pytest.approx(2.8973 - 0.1 * span, abs=1e-12)
+    assert limits.velocity[0] == pytest.approx(2.175)
+    assert limits.torque[0] == pytest.approx(87.0)
+    assert limits.torque[6] == pytest.approx(5.0)
+    assert np.all(np.isinf(limits.acceleration))
+    with pytest.raises(ValueError, match="unknown joints"):
+        limits_from_model(model, velocity={"elbow": 1.0})
+    with pytest.raises(ValueError, match="position_margin"):
+        limits_from_model(model, position_margin=0.5)
+
+
+def test_adam_and_other_criteria_run_and_hold_the_limits():
+    model = _model("head")
+    limits = limits_from_model(model, velocity=1.0)
+    for kind in ("condition", "e"):
+        res = optimize_excitation(model, limits, rate=RATE, criterion=kind, optimizer="adam",
+                                  **{**SMALL, "max_iter": 10})  # fmt: skip
+        assert res.criterion == kind
+        assert min(check_limits(model, res.trajectory, limits, rate=RATE).values()) >= 0.0
