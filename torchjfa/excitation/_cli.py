@@ -62,8 +62,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "acceleration, torque and workspace limits. Writes the trajectory (CSV, NPZ), its "
         "coefficients, a report against a random sum of sinusoids in the same limits, and "
         "plots.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
+    if p.formatter_class is argparse.HelpFormatter:  # keep a formatter the parent gives
+        p.formatter_class = argparse.ArgumentDefaultsHelpFormatter  # show the defaults
     p.add_argument(
         "robot", help="URDF or MJCF file, or a shipped robot: panda, panda_arm, head, arm, ..."
     )
@@ -71,32 +72,45 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=10.0, help="s; whole periods of 1/base-freq")
     p.add_argument("--base-freq", type=float, default=0.1, help="base frequency f0, Hz")
     p.add_argument("--harmonics", type=int, default=5, help="harmonics per joint (>= 2)")
-    p.add_argument("--criterion", choices=("d", "condition", "e"), default="d")
+    p.add_argument(
+        "--criterion", choices=("d", "condition", "e"), default="d",
+        help="D-optimality (-log det), log condition number or E-optimality (-log lambda_min)",
+    )  # fmt: skip
     p.add_argument(
         "--friction", type=_friction, default=("viscous",),
-        help="friction terms in the parameters: viscous,coulomb,offset or 'none'",
+        help="joint terms in the parameters, comma separated (viscous, coulomb, offset, ...) "
+        "or 'none'",
     )  # fmt: skip
     p.add_argument(
         "--rate", type=float, default=None,
-        help="output rate, Hz (default: 420 head, 480 arm, else 200); limits are checked at 10x",
+        help="output rate, Hz; when not given 420 for head, 480 for arm, else 200; the limits are "
+        "checked at 10x",
     )  # fmt: skip
     p.add_argument(
-        "--posture", type=_numbers, default=None, help="q0 per joint (default mid-range)"
+        "--posture",
+        type=_numbers,
+        default=None,
+        help="q0 per joint; when not given the middle of the limits",
     )
     p.add_argument("--position-margin", type=float, default=0.05, help="fraction of each range")
-    p.add_argument("--velocity-limit", type=_numbers, default=None, help="rad/s, one or per joint")
+    p.add_argument(
+        "--velocity-limit",
+        type=_numbers,
+        default=None,
+        help="rad/s, one or per joint; when not given the description's",
+    )
     p.add_argument("--acceleration-limit", type=_numbers, default=None, help="rad/s^2")
     p.add_argument("--torque-limit", type=_numbers, default=None, help="N m (nominal model)")
     p.add_argument(
-        "--workspace", type=_box, action="append", default=[],
+        "--workspace", type=_box, action="append", default=None,
         help="FRAME:xlo,ylo,zlo:xhi,yhi,zhi box for a frame's origin (repeatable)",
     )  # fmt: skip
     p.add_argument("--starts", type=int, default=3, help="random starts")
-    p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs")
+    p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="optimiser")
     p.add_argument("--max-iter", type=int, default=50, help="iterations per start")
     p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -140,7 +154,7 @@ def run(args, model) -> int:
         velocity=_limit_arg(args.velocity_limit, n, "velocity-limit"),
         acceleration=_limit_arg(args.acceleration_limit, n, "acceleration-limit"),
         torque=_limit_arg(args.torque_limit, n, "torque-limit"),
-        workspace=args.workspace,
+        workspace=args.workspace or (),
     )
     res = optimize_excitation(
         model,
