@@ -386,6 +386,14 @@ def cmd_simulate(args) -> int:
     from .sim import SensorNoise, generate_log
 
     noise = SensorNoise().scaled(args.noise_scale)
+    trajectory = None
+    if args.trajectory:  # a trajectory written by torchjfa excite
+        from .excitation._cli import simulation_reference
+
+        try:
+            trajectory = simulation_reference(args.trajectory, args.robot)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     log = generate_log(
         args.robot,
         n_samples=args.n_samples,
@@ -393,6 +401,7 @@ def cmd_simulate(args) -> int:
         noise=noise,
         seed=args.seed,
         progress=not args.quiet,
+        trajectory=trajectory,
     )
     out = Path(args.out)
     if out.suffix.lower() == ".npz" and args.full:
@@ -412,6 +421,17 @@ def cmd_simulate(args) -> int:
         f"  torchjfa identify {args.robot} {shlex.quote(str(out))} --out result/"
     )
     return 0
+
+
+# ------------------------------------------------------------------------------ excite
+def cmd_excite(args) -> int:
+    from .excitation._cli import run
+
+    model = load_model(args.robot, args.friction)
+    try:
+        return run(args, model)
+    except ValueError as exc:  # bad options or limits that cannot be met
+        raise UsageError(" ".join(str(exc).split())) from None
 
 
 # ------------------------------------------------------------------------------ evaluate
@@ -640,7 +660,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="with .npz: the whole SimulatedLog, ground truth included",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--trajectory",
+        default=None,
+        metavar="PATH",
+        help="track this trajectory.npz from torchjfa excite (default: a random excitation)",
+    )
     p.set_defaults(func=cmd_simulate)
+
+    from .excitation._cli import add_parser as add_excite_parser
+
+    add_excite_parser(sub).set_defaults(func=cmd_excite)
 
     p = sub.add_parser(
         "evaluate",

@@ -1,0 +1,28 @@
+"""Optimal excitation trajectories for identification, designed before the log exists.
+
+Use this package to choose the motion a robot runs for identification: `limits_from_model`
+collects the limits (description and user), `optimize_excitation` optimises a periodic Fourier
+series (`FourierTrajectory`, at rest at a posture at the start of every period) for the
+D-optimality, condition number or E-optimality of the base-parameter information matrix,
+through the batched regressor with torch autograd, and checks the limits on a fine grid
+(`check_limits`); `random_excitation` is the library's random sum of sinusoids in the same
+limits, the baseline. ``torchjfa excite`` is the command line; `FourierTrajectory.to_sinusoid`
+hands the result to `torchjfa.sim.generate_log`.
+"""
+
+from ._design import CRITERIA as CRITERIA
+from ._design import ExcitationResult as ExcitationResult
+from ._design import base_directions as base_directions
+from ._design import criterion_value as criterion_value
+from ._design import information_matrix as information_matrix
+from ._design import optimize_excitation as optimize_excitation
+from ._design import random_excitation as random_excitation
+from ._design import trajectory_information as trajectory_information
+from ._fourier import FourierTrajectory as FourierTrajectory
+from ._fourier import constrain_coefficients as constrain_coefficients
+from ._fourier import fourier_states as fourier_states
+from ._limits import Limits as Limits
+from ._limits import WorkspaceBox as WorkspaceBox
+from ._limits import check_limits as check_limits
+from ._limits import constraint_violations as constraint_violations
+from ._limits import limits_from_model as limits_from_model

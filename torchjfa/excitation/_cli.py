@@ -1,0 +1,350 @@
+"""``torchjfa excite``: design an optimal excitation and write it, its report and its plots.
+
+    torchjfa excite ROBOT --duration 10 --base-freq 0.1 --harmonics 5 --out traj/
+    torchjfa simulate head --trajectory traj/trajectory.npz --out log.csv
+
+`add_parser` registers the subcommand on the ``torchjfa`` parser, `run` runs it with the
+robot's `RigidBodyModel`; `simulation_reference` turns a written trajectory into the reference
+`torchjfa.sim.generate_log` tracks (``torchjfa simulate --trajectory``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["add_parser", "run", "simulation_reference"]
+
+_DEFAULT_RATE = 200.0
+
+
+def _numbers(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers, got {text!r}"
+        ) from None
+
+
+def _box(text: str):
+    from ._limits import WorkspaceBox
+
+    parts = text.split(":")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected FRAME:xlo,ylo,zlo:xhi,yhi,zhi, got {text!r}")
+    try:
+        return WorkspaceBox(parts[0], _numbers(parts[1]), _numbers(parts[2]))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _friction(text: str) -> tuple[str, ...]:
+    if text.strip().lower() in ("", "none"):
+        return ()
+    return tuple(k.strip() for k in text.split(",") if k.strip())  # the model checks the names
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``excite`` subcommand to ``torchjfa``'s subparsers; returns its parser."""
+    p = subparsers.add_parser(
+        "excite",
+        help="design an optimal excitation trajectory for identification",
+        description="Optimise a periodic Fourier-series trajectory (at rest at a posture at the "
+        "start of every period) for the identification of a robot: D-optimality (or the "
+        "condition number, or E-optimality) of the base-parameter information matrix, through "
+        "the batched regressor with autograd, inside the position (with a margin), velocity, "
+        "acceleration, torque and workspace limits. Writes the trajectory (CSV, NPZ), its "
+        "coefficients, a report against a random sum of sinusoids in the same limits, and "
+        "plots.",
+    )
+    if p.formatter_class is argparse.HelpFormatter:  # keep a formatter the parent gives
+        p.formatter_class = argparse.ArgumentDefaultsHelpFormatter  # show the defaults
+    p.add_argument(
+        "robot", help="URDF or MJCF file, or a shipped robot: panda, panda_arm, head, arm, ..."
+    )
+    p.add_argument("--out", default="traj", help="output folder")
+    p.add_argument("--duration", type=float, default=10.0, help="s; whole periods of 1/base-freq")
+    p.add_argument("--base-freq", type=float, default=0.1, help="base frequency f0, Hz")
+    p.add_argument("--harmonics", type=int, default=5, help="harmonics per joint (>= 2)")
+    p.add_argument(
+        "--criterion", choices=("d", "condition", "e"), default="d",
+        help="D-optimality (-log det), log condition number or E-optimality (-log lambda_min)",
+    )  # fmt: skip
+    p.add_argument(
+        "--friction", type=_friction, default=("viscous",),
+        help="joint terms in the parameters, comma separated (viscous, coulomb, offset, ...) "
+        "or 'none'",
+    )  # fmt: skip
+    p.add_argument(
+        "--rate", type=float, default=None,
+        help="output rate, Hz; when not given 420 for head, 480 for arm, else 200; the limits are "
+        "checked at 10x",
+    )  # fmt: skip
+    p.add_argument(
+        "--posture",
+        type=_numbers,
+        default=None,
+        help="q0 per joint; when not given the middle of the limits",
+    )
+    p.add_argument("--position-margin", type=float, default=0.05, help="fraction of each range")
+    p.add_argument(
+        "--velocity-limit",
+        type=_numbers,
+        default=None,
+        help="rad/s, one or per joint; when not given the description's",
+    )
+    p.add_argument("--acceleration-limit", type=_numbers, default=None, help="rad/s^2")
+    p.add_argument("--torque-limit", type=_numbers, default=None, help="N m (nominal model)")
+    p.add_argument(
+        "--workspace", type=_box, action="append", default=None,
+        help="FRAME:xlo,ylo,zlo:xhi,yhi,zhi box for a frame's origin (repeatable)",
+    )  # fmt: skip
+    p.add_argument("--starts", type=int, default=3, help="random starts")
+    p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="optimiser")
+    p.add_argument("--max-iter", type=int, default=50, help="iterations per start")
+    p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _limit_arg(values, n: int, name: str):
+    if values is None:
+        return None
+    if len(values) not in (1, n):
+        raise ValueError(f"--{name} takes 1 or {n} numbers, got {len(values)}")
+    return values[0] if len(values) == 1 else values
+
+
+def _table(model, traj, rate: float, duration: float) -> tuple[np.ndarray, dict]:
+    t = np.arange(int(round(duration * rate))) / rate
+    q, qd, qdd = traj.evaluate_numpy(t)
+    return t, {"q": q, "qd": qd, "qdd": qdd}
+
+
+def run(args, model) -> int:
+    """Run ``torchjfa excite`` on ``model`` (the robot's `RigidBodyModel`).
+
+    Raises:
+        ValueError: on bad options or limits that cannot be met.
+    """
+    from ..sim import DEFAULT_RATES
+    from ._design import optimize_excitation, random_excitation, trajectory_information
+    from ._limits import limits_from_model
+
+    n = model.n_dof
+    rate = args.rate if args.rate is not None else DEFAULT_RATES.get(args.robot, _DEFAULT_RATE)
+    if not rate > 0:
+        raise ValueError(f"--rate must be positive, got {rate}")
+    posture = None
+    if args.posture is not None:
+        if len(args.posture) != n:
+            raise ValueError(f"--posture takes {n} numbers (joints {model.joint_names})")
+        posture = args.posture
+    limits = limits_from_model(
+        model,
+        position_margin=args.position_margin,
+        velocity=_limit_arg(args.velocity_limit, n, "velocity-limit"),
+        acceleration=_limit_arg(args.acceleration_limit, n, "acceleration-limit"),
+        torque=_limit_arg(args.torque_limit, n, "torque-limit"),
+        workspace=args.workspace or (),
+    )
+    res = optimize_excitation(
+        model,
+        limits,
+        duration=args.duration,
+        base_frequency=args.base_freq,
+        harmonics=args.harmonics,
+        posture=posture,
+        criterion=args.criterion,
+        rate=rate,
+        n_grid=args.grid,
+        n_starts=args.starts,
+        optimizer=args.optimizer,
+        max_iter=args.max_iter,
+        seed=args.seed,
+        progress=not args.quiet,
+    )
+    rnd = random_excitation(
+        model, limits, base_frequency=args.base_freq, harmonics=args.harmonics, rate=rate,
+        seed=args.seed,
+    )  # fmt: skip
+    from ._limits import check_limits
+
+    rnd_margins = check_limits(model, rnd, limits, rate=rate, raise_error=False)
+    n_info = max(args.grid, 1000)
+    info = {
+        "optimised": trajectory_information(model, res.trajectory, res.basis, n_grid=n_info),
+        "random": trajectory_information(model, rnd, res.basis, n_grid=n_info),
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    traj = res.trajectory
+    t, sig = _table(model, traj, rate, args.duration)
+    names = model.joint_names
+    res.trajectory.save(out / "trajectory.npz", t=t, joint_names=np.array(names), rate=rate, **sig)
+    header = ["t"] + [f"{k}_{j}" for k in ("q", "qd", "qdd") for j in names]
+    cols = np.column_stack([t] + [sig[k] for k in ("q", "qd", "qdd")])
+    np.savetxt(out / "trajectory.csv", cols, delimiter=",", header=",".join(header), comments="")
+    coef = {
+        "form": "q_j(t) = q0_j + sum_k b_jk/(w k) + a_jk/(w k) sin(w k t) - b_jk/(w k) cos(w k t), "
+        "w = 2 pi base_frequency",
+        "base_frequency_hz": traj.base_frequency,
+        "joint_names": list(names),
+        "posture": traj.posture.tolist(),
+        "a": traj.a.tolist(),
+        "b": traj.b.tolist(),
+    }
+    (out / "coefficients.json").write_text(json.dumps(coef, indent=1))
+    summary = {
+        "robot": args.robot,
+        "command": "torchjfa " + " ".join(shlex.quote(a) for a in getattr(args, "argv", [])),
+        "criterion": res.criterion,
+        "duration_s": args.duration,
+        "base_frequency_hz": args.base_freq,
+        "harmonics": args.harmonics,
+        "rate_hz": rate,
+        "identifiable_directions": int(res.basis.shape[1]),
+        "n_params": model.n_params,
+        "optimisation_seconds": res.seconds,
+        "start_values": res.start_values,
+        "shrink": res.shrink,
+        "margins": {"optimised": res.margins, "random": rnd_margins},
+        "optimised": {k: v for k, v in info["optimised"].items() if k != "singular_values"},
+        "random": {k: v for k, v in info["random"].items() if k != "singular_values"},
+    }
+    (out / "report.json").write_text(json.dumps(summary, indent=1))
+    (out / "report.md").write_text(_markdown(summary, limits))
+    if not args.no_plots:
+        _plots(out, model, limits, traj, rnd, info, rate, args.duration)
+    o, r = info["optimised"], info["random"]
+    print(
+        f"optimised a {args.duration:g} s excitation of {model.n_dof} joints in "
+        f"{res.seconds:.1f} s: criterion {res.criterion} {o[res.criterion]:.4g} (random "
+        f"{r[res.criterion]:.4g}), condition number {o['condition_number']:.4g} (random "
+        f"{r['condition_number']:.4g}, {r['condition_number'] / o['condition_number']:.2f}x)"
+    )
+    print(f"wrote {out}/trajectory.npz, trajectory.csv, coefficients.json, report.md")
+    return 0
+
+
+def _markdown(s: dict, limits) -> str:
+    o, r = s["optimised"], s["random"]
+    lines = [
+        f"# Excitation for {s['robot']}",
+        "",
+        f"`{s['command']}`",
+        "",
+        f"{s['duration_s']:g} s, base frequency {s['base_frequency_hz']:g} Hz, "
+        f"{s['harmonics']} harmonics, output at {s['rate_hz']:g} Hz (limits checked at "
+        f"{10 * s['rate_hz']:g} Hz); {s['identifiable_directions']} identifiable directions of "
+        f"{s['n_params']} parameters; optimised in {s['optimisation_seconds']:.1f} s "
+        f"(starts reached {', '.join(f'{v:.4g}' for v in s['start_values'])}; shrunk x"
+        f"{s['shrink']:.3f} to hold the limits on the fine grid).",
+        "",
+        "| | optimised | random sum of sinusoids | ratio |",
+        "| --- | ---: | ---: | ---: |",
+        f"| condition number of Y V | {o['condition_number']:.4g} | "
+        f"{r['condition_number']:.4g} | {r['condition_number'] / o['condition_number']:.2f} |",
+    ]
+    for k, label in (("d", "-log det M / r"), ("condition", "log cond"), ("e", "-log lambda_min")):
+        lines.append(f"| {label} (`{k}`) | {o[k]:.4g} | {r[k]:.4g} | |")
+    lines += ["", "Smallest margin to each limit (fraction of the limit; position: of the range "
+              "left after the margin):", "", "| limit | optimised | random |", "| --- | ---: | ---: |"]  # fmt: skip
+    for k in s["margins"]["optimised"]:
+        lines.append(
+            f"| {k} | {s['margins']['optimised'][k]:.3g} | {s['margins']['random'].get(k, math.nan):.3g} |"
+        )
+    lines += ["", "Limits (position with the margin):", "", "| joint | low | high | velocity | "
+              "acceleration | torque |", "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+    for j, name in enumerate(limits.joint_names):
+        lines.append(
+            f"| {name} | {limits.position_low[j]:.4g} | {limits.position_high[j]:.4g} | "
+            f"{limits.velocity[j]:.4g} | {limits.acceleration[j]:.4g} | {limits.torque[j]:.4g} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _plots(out, model, limits, traj, rnd, info, rate, duration) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.arange(int(round(duration * rate))) / rate
+    qo, qdo, _ = traj.evaluate_numpy(t)
+    qr, qdr, _ = rnd.evaluate_numpy(np.mod(t, rnd.period))
+    n = model.n_dof
+    fig, axes = plt.subplots(n, 2, figsize=(11, 1.6 * n + 1), sharex=True, squeeze=False)
+    for j in range(n):
+        ax = axes[j, 0]
+        ax.plot(t, qo[:, j], "C0", lw=1.2, label="optimised")
+        ax.plot(t, qr[:, j], "C1--", lw=1.0, label="random")
+        for v in (limits.position_low[j], limits.position_high[j]):
+            ax.axhline(v, color="k", lw=0.8, ls=":")
+        ax.set_ylabel(model.joint_names[j], fontsize=7)
+        ax = axes[j, 1]
+        ax.plot(t, qdo[:, j], "C0", lw=1.2)
+        ax.plot(t, qdr[:, j], "C1--", lw=1.0)
+        if np.isfinite(limits.velocity[j]):
+            for v in (-limits.velocity[j], limits.velocity[j]):
+                ax.axhline(v, color="k", lw=0.8, ls=":")
+    axes[0, 0].set_title("position (dotted: limits with the margin)")
+    axes[0, 1].set_title("velocity (dotted: limits)")
+    axes[0, 0].legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(out / "trajectory.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key, style in (("optimised", "C0o-"), ("random", "C1s--")):
+        sv = info[key]["singular_values"]
+        ax.semilogy(np.arange(1, sv.size + 1), sv, style, ms=3,
+                    label=f"{key} (cond {info[key]['condition_number']:.3g})")  # fmt: skip
+    ax.set_xlabel("index")
+    ax.set_ylabel("singular value of Y V / sqrt(N)")
+    ax.set_title("base regressor")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "singular_values.png", dpi=110)
+    plt.close(fig)
+
+
+def simulation_reference(path, robot: str):
+    """The trajectory written by ``torchjfa excite`` as `generate_log`'s reference for ``robot``.
+
+    Args:
+        path: ``trajectory.npz`` from ``torchjfa excite`` (or `FourierTrajectory.save`).
+        robot: a simulated robot (``"head"``, ``"arm"``); the joints are matched by name.
+
+    Returns:
+        A `torchjfa.sim.SinusoidTrajectory` in the simulator's joint order.
+
+    Raises:
+        ValueError: if the file is not a trajectory or its joints are not the robot's.
+    """
+    from ..sim import load_robot
+    from ..sim._robots import joint_names
+    from ._fourier import FourierTrajectory
+
+    if not Path(path).is_file():
+        raise ValueError(f"no trajectory file {str(path)!r}")
+    traj = FourierTrajectory.load(path)
+    names = joint_names(load_robot(robot))
+    if sorted(names) != sorted(traj.joint_names):
+        raise ValueError(
+            f"the trajectory's joints {list(traj.joint_names)} are not the simulated {robot}'s "
+            f"{list(names)}"
+        )
+    perm = [traj.joint_names.index(j) for j in names]
+    return FourierTrajectory(
+        traj.base_frequency, traj.posture[perm], traj.a[perm], traj.b[perm], names
+    ).to_sinusoid()
