@@ -165,6 +165,7 @@ def run(
         idyn = torchjfa.io.load_identified(id_path)  # the file's model, as every user loads it
         with torch.no_grad():
             curves["identified"][n] = float(nmse(Yt @ idyn.theta, taut))
+            per_joint = nmse(Yt @ idyn.theta, taut, per_joint=True).tolist()
         print(f"  n={n:6d} {'identified':12s} test nMSE {curves['identified'][n]:.5f}", flush=True)
         t3 = time.perf_counter()
         for kind in kinds:
@@ -199,6 +200,7 @@ def run(
         "min_harmonic": min_harmonic,
         "test_beyond_training": beyond,
         "nmse_at_full_data": results,
+        "identified_per_joint": dict(zip(model.joint_names, per_joint, strict=True)),
         "curves": {k: {str(n): v for n, v in c.items()} for k, c in curves.items()},
         "best_residual": best,
         "residual_beats_both": bool(best)
@@ -249,8 +251,9 @@ def _print_one(s: dict) -> None:
     res = s["nmse_at_full_data"]
     best = s["best_residual"]
     print(f"held-out torque nMSE with {s['n_train']} training samples ({s['robot']}):")
+    joints = ", ".join(f"{j} {v:.3g}" for j, v in s["identified_per_joint"].items())
     if best is None:
-        print(f"  {_LABELS['identified']:28s} {res['identified']:.5f}")
+        print(f"  {_LABELS['identified']:28s} {res['identified']:.5f}  (per joint: {joints})")
         return
     for k, v in res.items():
         print(f"  {_LABELS[k]:28s} {v:.5f}   ratio to {_LABELS[best]}: {v / res[best]:.2f}")
