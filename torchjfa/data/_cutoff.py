@@ -138,6 +138,12 @@ def choose_cutoff(
     k = max(1, int(rate // target_rate))
     while k > 1 and grid[-1] >= 0.5 * rate / k:
         k -= 1
+    if not uniform.duration > (n_folds + 2) * reach:
+        raise LogError(
+            f"{log.source}: {log.duration:.3g} s are too short to choose a cut-off by "
+            f"{n_folds} held-out blocks with the filter's reach of {reach:.3g} s (more than "
+            f"{(n_folds + 2) * reach:.3g} s needed); give the cut-off (--cutoff HZ)"
+        )
     common = {"method": method, "velocity": velocity, "period_s": None, "edge_s": reach}
     raw = prepare(uniform, cutoff_hz=grid[0], filter_torque=False, decimate=k, **common).tau
     n, n_dof = raw.shape
@@ -145,9 +151,9 @@ def choose_cutoff(
     bounds = [round(i * n / n_folds) for i in range(n_folds + 1)]
     if min(b - a for a, b in zip(bounds, bounds[1:], strict=False)) < 2 or gap >= n // n_folds:
         raise LogError(
-            f"{log.source}: {log.duration:.3g} s are too short to choose a cut-off by "
-            f"{n_folds} held-out blocks with the filter's reach of {reach:.3g} s; give the "
-            "cut-off (--cutoff HZ)"
+            f"{log.source}: {n} samples after decimation by {k} are too few to choose a "
+            f"cut-off by {n_folds} held-out blocks {gap} samples apart from their fits; give "
+            "the cut-off (--cutoff HZ)"
         )
     var = raw.var(0).clamp_min(1e-300)
     idx = torch.arange(n)
