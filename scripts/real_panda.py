@@ -32,9 +32,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import math
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import torch
@@ -80,17 +82,19 @@ def load_panda(folder: str | Path = DATA) -> JointLog:
     )
 
 
-def _identify(train_csv: Path, valid_csv: Path, out: Path, options) -> Path:
+def _identify(train_csv: Path, valid_csv: Path, out: Path, options) -> tuple[Path, float]:
     argv = ["identify", ROBOT, str(train_csv), "--validation-log", str(valid_csv)]
     argv += ["--out", str(out), "--quiet", "--no-plots", *options]
     text = io.StringIO()
+    started = time.perf_counter()
     with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
         status = main(argv)
+    seconds = time.perf_counter() - started
     if status != 0:
         raise RuntimeError(
             f"torchjfa {' '.join(argv)} ended with status {status}:\n{text.getvalue()}"
         )
-    return out / "model.npz", text.getvalue()
+    return out / "model.npz", seconds
 
 
 def _evaluation(log: JointLog, t_split: float) -> dict[str, torch.Tensor]:
@@ -147,18 +151,20 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
         write_log(log.select(slice(n_train, log.n_samples)), valid_csv)
 
         def row(label, options):
-            path, text = _identify(train_csv, valid_csv, tmp / f"r{len(rows)}", options)
+            path, seconds = _identify(train_csv, valid_csv, tmp / f"r{len(rows)}", options)
             ident = read_identified(path)
             filt, raw = _rms(ident.model, ident.theta, ev)
-            chosen = next((ln for ln in text.splitlines() if "cut-off" in ln), "")
+            settings = json.loads((path.parent / "report.json").read_text())["settings"]
             return {
                 "label": label,
+                "cutoff_hz": settings["prepare"]["cutoff_hz"],
+                "seconds": seconds,
                 "options": " ".join(options) or "(the defaults)",
                 "rms": filt,
                 "rms_raw": raw,
                 "model": ident.model,
                 "theta": ident.theta,
-                "note": chosen,
+                "warnings": settings.get("warnings", []),
             }
 
         smoke_opts = ("--jackknife", "0") if smoke else ()
@@ -211,8 +217,14 @@ def _print(rows, ev, out, *, smoke, ols_all) -> None:
         + ", ".join(f"{r['label'].split(', ')[-1]} {float(r['rms'].mean()):.4f}" for r in ols_all),
         file=out,
     )
-    if rows["defaults"].get("note"):
-        print(f"defaults: {rows['defaults']['note'].strip()}", file=out)
+    for key in ("defaults", "bayes-jfa"):
+        if key in rows:
+            r = rows[key]
+            print(
+                f"{key}: {r['options']}; cut-off {r['cutoff_hz']:g} Hz; the command took "
+                f"{r['seconds']:.1f} s",
+                file=out,
+            )
     d, o = float(rows["defaults"]["rms"].mean()), float(rows["ols"]["rms"].mean())
     print(
         f"defaults vs hand-tuned OLS: {d:.4f} vs {o:.4f} N m, {100 * (1 - d / o):+.1f} % "

@@ -73,14 +73,18 @@ class CutoffChoice:
 
 
 def _fit(Y: torch.Tensor, tau: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """Least squares ``tau ~ Y theta`` with joint weights ``w`` (minimum norm where rank is
-    short: column-scaled, SVD-based)."""
+    """Least squares ``tau ~ Y theta`` with joint weights ``w``, from the moments (the normal
+    equations of the column-scaled problem, solved by a pseudo-inverse: minimum norm along the
+    directions the data leave undetermined)."""
     p = Y.shape[-1]
     A = (Y * w[None, :, None]).reshape(-1, p)
-    b = (tau * w[None, :]).reshape(-1, 1)
+    b = (tau * w[None, :]).reshape(-1)
     s = A.norm(dim=0)
     s = torch.where(s > 0, s, torch.ones_like(s))
-    sol = torch.linalg.lstsq(A / s, b, rcond=1e-10, driver="gelsd").solution[:, 0]
+    A = A / s
+    # eigenvalues of the Gram matrix are squared singular values: 1e-14 of the largest is
+    # 1e-7 in singular values, above the round-off of forming A^T A in float64
+    sol = torch.linalg.pinv(A.T @ A, rtol=1e-14, hermitian=True) @ (A.T @ b)
     return sol / s
 
 
