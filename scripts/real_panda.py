@@ -172,6 +172,7 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
         if not smoke:
             jfa = [row("Bayesian JFA", ("--estimator", e, *o)) for e, o in JFA_CONFIGS]
             rows["bayes-jfa"] = min(jfa, key=lambda r: float(r["rms"].mean()))
+            tried = ", ".join(f"{r['options']} {float(r['rms'].mean()):.4f}" for r in jfa)
         cutoffs = HAND_CUTOFFS[1:2] if smoke else HAND_CUTOFFS
         ols = [
             row(
@@ -192,6 +193,8 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
         "theta": nominal.nominal_theta,
     }
     _print(rows, ev, out, smoke=smoke, ols_all=ols)
+    if not smoke:
+        print(f"Bayesian JFA configurations tried: {tried}", file=out)
     return rows
 
 
