@@ -41,7 +41,7 @@ def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(head_csv, 
     # one of the default grid's cut-offs (2..30 Hz), below the 420 Hz log's Nyquist frequency
     assert 2.0 <= cutoff <= 30.0
     md = (out / "report.md").read_text()
-    assert f"cut-off {cutoff:g} Hz (chosen by held-out torque prediction over 2..30 Hz" in md
+    assert f"- cut-off: {cutoff:g} Hz, chosen by held-out torque prediction over 2..30 Hz" in md
     assert "estimator: `OLS(" in md
     assert "friction viscous, coulomb, offset" in md
     # log-Cholesky: fully consistent, and the header says the table's verdict
@@ -82,3 +82,28 @@ def test_a_bad_cut_off_is_refused(head_csv, tmp_path, capsys, bad):
         main(["identify", "head", str(head_csv), "--out", str(tmp_path), "--cutoff", bad])
     assert exc.value.code == 2
     assert "expected 'auto' or a positive cut-off in Hz" in capsys.readouterr().err
+
+
+def test_the_cut_off_is_chosen_without_the_held_out_part(head_csv, tmp_path, capsys, monkeypatch):
+    import numpy as np
+
+    import torchjfa.data
+
+    seen = []
+    choose = torchjfa.data.choose_cutoff
+
+    def spy(model, log, **kwargs):
+        seen.append(float(log.t[-1]))
+        return choose(model, log, **kwargs)
+
+    monkeypatch.setattr(torchjfa.data, "choose_cutoff", spy)
+    out = tmp_path / "h"
+    code, _, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
+        "--no-plots",
+    )  # fmt: skip
+    assert code == 0, err
+    with np.load(out / "validation.npz") as z:
+        first_held_out = float(z["t"][0])
+    (last_seen,) = seen
+    assert last_seen < first_held_out

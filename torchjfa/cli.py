@@ -176,12 +176,17 @@ def _cutoff(text: str):
 
 def _chosen_cutoff(args, model, log) -> tuple[float, str, list[str]]:
     """``--cutoff``, or with 'auto' `choose_cutoff` on the training part of the raw log."""
-    from .data import DEFAULT_CUTOFF_HZ, LogError, choose_cutoff
+    from .data import DEFAULT_CUTOFF_HZ, LogError, choose_cutoff, cutoff_grid
 
     if args.cutoff != "auto":
-        return float(args.cutoff), "given", []
-    if not args.validation_log:  # the part held out later is not seen by the choice
-        log = log.select(log.t < log.t[0] + (1.0 - args.validation) * log.duration)
+        return float(args.cutoff), "given (--cutoff)", []
+    if not args.validation_log:
+        # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
+        # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
+        # 4 / 2 s at the grid's lowest cut-off
+        v = args.validation
+        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / cutoff_grid()[0]
+        log = log.select(log.t < log.t[0] + end)
     try:
         choice = choose_cutoff(
             model, log, method=args.filter, velocity=args.velocity, compiled=args.compiled
@@ -189,7 +194,7 @@ def _chosen_cutoff(args, model, log) -> tuple[float, str, list[str]]:
     except LogError as exc:
         return (
             DEFAULT_CUTOFF_HZ,
-            f"{DEFAULT_CUTOFF_HZ:g} Hz by default",
+            "the default: the log is too short to choose one (see the warnings)",
             [f"--cutoff auto: {exc}; {DEFAULT_CUTOFF_HZ:g} Hz used"],
         )
     return choice.cutoff_hz, choice.how, []
@@ -365,7 +370,7 @@ def cmd_identify(args) -> int:
     preparation = (
         f"{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
         + (", resampled" if info["resampled"] else "")
-        + f"; {args.filter} cut-off {cutoff:g} Hz ({how}), velocities {info['velocity']}"
+        + f"; {args.filter} cut-off {cutoff:g} Hz, velocities {info['velocity']}"
         + (f"; period {info['period_s']:.6g} s" if info["period_s"] else "; no period")
         + f"; dropped {info['dropped_start_s']:.3g} s at the start, {info['dropped_end_s']:.3g} s "
         f"at the end; decimated x{args.decimate} to {info['rate_hz']:.6g} Hz"
@@ -375,6 +380,7 @@ def cmd_identify(args) -> int:
         "log": str(args.log),
         "validation": split,
         "preparation": preparation,
+        "cutoff": f"{cutoff:g} Hz, {how}",
         "prepare": {k: v for k, v in prep.items()},
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,

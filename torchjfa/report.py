@@ -348,6 +348,7 @@ class IdentificationReport:
                 if self.settings.get("preparation")
                 else []
             ),
+            *([f"- cut-off: {self.settings['cutoff']}"] if self.settings.get("cutoff") else []),
             f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
             f"{', '.join(self.model.friction) or 'none'}",
             f"- estimator: `{s['estimator']}`" + self._noise_mode(),
