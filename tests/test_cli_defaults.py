@@ -4,6 +4,7 @@ friction, log-Cholesky (full consistency), OLS; one consistency verdict in the r
 import json
 import re
 
+import numpy as np
 import pytest
 
 from torchjfa.cli import main
@@ -29,7 +30,19 @@ def _verdicts(md: str) -> tuple[str, str]:
     return header, table
 
 
-def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(head_csv, tmp_path, capsys):
+def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
+    head_csv, tmp_path, capsys, monkeypatch
+):
+    import torchjfa.data
+
+    seen = []
+    choose = torchjfa.data.choose_cutoff
+
+    def spy(model, log, **kwargs):
+        seen.append(float(log.t[-1]))
+        return choose(model, log, **kwargs)
+
+    monkeypatch.setattr(torchjfa.data, "choose_cutoff", spy)
     out = tmp_path / "r"
     code, stdout, err = _identify(
         capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
@@ -48,6 +61,11 @@ def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(head_csv, 
     assert report["consistent"]
     assert _verdicts(md) == ("yes", "yes")
     assert "physically consistent: yes" in stdout
+    # the choice saw none of the held-out part
+    with np.load(out / "validation.npz") as z:
+        first_held_out = float(z["t"][0])
+    (last_seen,) = seen
+    assert last_seen < first_held_out
 
 
 def test_the_header_verdict_is_the_tables_with_virtual_parameters(head_csv, tmp_path, capsys):
@@ -82,28 +100,3 @@ def test_a_bad_cut_off_is_refused(head_csv, tmp_path, capsys, bad):
         main(["identify", "head", str(head_csv), "--out", str(tmp_path), "--cutoff", bad])
     assert exc.value.code == 2
     assert "expected 'auto' or a positive cut-off in Hz" in capsys.readouterr().err
-
-
-def test_the_cut_off_is_chosen_without_the_held_out_part(head_csv, tmp_path, capsys, monkeypatch):
-    import numpy as np
-
-    import torchjfa.data
-
-    seen = []
-    choose = torchjfa.data.choose_cutoff
-
-    def spy(model, log, **kwargs):
-        seen.append(float(log.t[-1]))
-        return choose(model, log, **kwargs)
-
-    monkeypatch.setattr(torchjfa.data, "choose_cutoff", spy)
-    out = tmp_path / "h"
-    code, _, err = _identify(
-        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
-        "--no-plots",
-    )  # fmt: skip
-    assert code == 0, err
-    with np.load(out / "validation.npz") as z:
-        first_held_out = float(z["t"][0])
-    (last_seen,) = seen
-    assert last_seen < first_held_out

@@ -192,8 +192,9 @@ def _verdict(c: ConsistencyReport) -> str:
     n_bad = int((~c.body_ok).sum())
     if c.weakly_ok:
         return (
-            f"no ({n_bad} of {n} bodies fail the triangle inequalities; mass > 0 and inertia "
-            "PSD, the seed's eq. 5, hold; --parametrization log-cholesky enforces all)"
+            f"no ({n_bad} of {n} bodies fail: the triangle inequalities or a positive "
+            "definite pseudo-inertia; mass > 0 and inertia PSD, the seed's eq. 5, hold; "
+            "--parametrization log-cholesky enforces all)"
         )
     return f"no ({n_bad} of {n} bodies fail)"
 
