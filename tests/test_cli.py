@@ -27,8 +27,16 @@ def head_csv(tmp_path_factory):
     return path
 
 
+# the defaults before the real-robot ones (a data-chosen cut-off, Coulomb and offset friction,
+# log-Cholesky, OLS), given here so that these tests keep testing what they did on the simulated head;
+# options a test gives come later and win. The defaults themselves: test_cli_defaults.py
+OLD_DEFAULTS = ["--cutoff", "20", "--friction", "viscous", "--parametrization", "virtual"]
+OLD_DEFAULTS += ["--estimator", "bayes-jfa"]
+
+
 def _identify(capsys, *args):
-    code = main(["identify", *map(str, args)])
+    args = [str(a) for a in args]  # robot, log, options
+    code = main(["identify", *args[:2], *OLD_DEFAULTS, *args[2:]])
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -350,6 +358,7 @@ def test_help_of_every_command_shows_every_default():
     assert checked >= 23  # 17 options with a default in identify, 3 in simulate, 3 in evaluate
     identify = _option_blocks(commands.choices["identify"].format_help())
     assert identify["--max-iter"].endswith("(default: 20000)")
-    assert identify["--friction"].endswith("(default: viscous)")
-    assert identify["--cutoff"].endswith("(default: 20)")
-    assert identify["--estimator"].endswith("(default: bayes-jfa)")
+    assert identify["--friction"].endswith("(default: viscous,coulomb,offset)")
+    assert identify["--cutoff"].endswith("(default: auto)")
+    assert identify["--parametrization"].endswith("(default: log-cholesky)")
+    assert identify["--estimator"].endswith("(default: ols)")

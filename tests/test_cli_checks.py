@@ -12,6 +12,7 @@ from torchjfa.dynamics import RigidBodyModel
 from torchjfa.sim import PeriodNoise, model_path
 
 FAST = ["--quiet", "--estimator", "ols", "--jackknife", "0", "--no-plots"]
+FAST += ["--cutoff", "20", "--friction", "viscous", "--parametrization", "virtual"]  # as written
 
 
 @pytest.fixture(scope="module")

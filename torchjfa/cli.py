@@ -160,6 +160,46 @@ def _period(text: str):
         ) from None
 
 
+def _cutoff(text: str):
+    if text == "auto":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto' or a positive cut-off in Hz, got {text!r}"
+        )
+    return value
+
+
+def _chosen_cutoff(args, model, log) -> tuple[float, str, list[str]]:
+    """``--cutoff``, or with 'auto' `choose_cutoff` on the training part of the raw log."""
+    from .data import DEFAULT_CUTOFF_HZ, LogError, choose_cutoff, cutoff_grid
+
+    if args.cutoff != "auto":
+        return float(args.cutoff), "given (--cutoff)", []
+    if not args.validation_log:
+        # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
+        # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
+        # 4 / 2 s at the grid's lowest cut-off
+        v = args.validation
+        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / cutoff_grid()[0]
+        log = log.select(log.t < log.t[0] + end)
+    try:
+        choice = choose_cutoff(
+            model, log, method=args.filter, velocity=args.velocity, compiled=args.compiled
+        )
+    except LogError as exc:
+        return (
+            DEFAULT_CUTOFF_HZ,
+            "the default: the log is too short to choose one (see the warnings)",
+            [f"--cutoff auto: {exc}; {DEFAULT_CUTOFF_HZ:g} Hz used"],
+        )
+    return choice.cutoff_hz, choice.how, []
+
+
 def _skip(text: str):
     if text == "auto":
         return text
@@ -258,17 +298,19 @@ def cmd_identify(args) -> int:
     log = read_log(args.log, **read).reorder(model.joint_names)
     _enough(log.n_samples, model, "the log has")
     warnings = _log_warnings(log, model)
+    if args.smoke:  # a quick check of the whole command: the first few seconds only
+        keep = int(torch.searchsorted(log.t, log.t[0] + args.smoke_seconds)) + 1
+        log = log.select(slice(0, min(keep, log.n_samples)))
+    cutoff, how, cut_warnings = _chosen_cutoff(args, model, log)
+    warnings += cut_warnings
     prep = {
-        "cutoff_hz": args.cutoff,
+        "cutoff_hz": cutoff,
         "method": args.filter,
         "velocity": args.velocity,
         "period_s": args.period,
         "skip_start_s": args.skip_start,
         "decimate": args.decimate,
     }
-    if args.smoke:  # a quick check of the whole command: the first few seconds only
-        keep = int(torch.searchsorted(log.t, log.t[0] + args.smoke_seconds)) + 1
-        log = log.select(slice(0, min(keep, log.n_samples)))
     data = prepare(log, **prep)
     if args.validation_log:
         vlog = read_log(args.validation_log, **read).reorder(model.joint_names)
@@ -276,7 +318,7 @@ def cmd_identify(args) -> int:
         split = f"separate log {args.validation_log}"
     else:
         # the gap keeps the filter's reach (4 / cutoff s) from linking the two parts
-        gap = int(4.0 / args.cutoff * data.info["rate_hz"])
+        gap = int(4.0 / cutoff * data.info["rate_hz"])
         train, valid = data.split(args.validation, gap=gap)
         split = f"last {args.validation:.0%} of the log, {gap} samples apart"
     _enough(train.n_samples, model, "after filtering and the validation split, training has")
@@ -328,7 +370,7 @@ def cmd_identify(args) -> int:
     preparation = (
         f"{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
         + (", resampled" if info["resampled"] else "")
-        + f"; {args.filter} cut-off {args.cutoff:g} Hz, velocities {info['velocity']}"
+        + f"; {args.filter} cut-off {cutoff:g} Hz, velocities {info['velocity']}"
         + (f"; period {info['period_s']:.6g} s" if info["period_s"] else "; no period")
         + f"; dropped {info['dropped_start_s']:.3g} s at the start, {info['dropped_end_s']:.3g} s "
         f"at the end; decimated x{args.decimate} to {info['rate_hz']:.6g} Hz"
@@ -338,6 +380,7 @@ def cmd_identify(args) -> int:
         "log": str(args.log),
         "validation": split,
         "preparation": preparation,
+        "cutoff": f"{cutoff:g} Hz, {how}",
         "prepare": {k: v for k, v in prep.items()},
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,
@@ -519,11 +562,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="the log: .csv, .npz or .parquet with columns t, q_<joint>, [qd_<joint>], tau_<joint>",
     )
     p.add_argument("--out", default="result", help="output folder")
-    p.add_argument("--estimator", choices=ESTIMATORS, default="bayes-jfa", help="the estimator")
+    p.add_argument(
+        "--estimator",
+        choices=ESTIMATORS,
+        default="ols",
+        help="the estimator (OLS by default: on the real Panda log of docs/real-robot.md it "
+        "predicts held-out torques better than Bayesian JFA)",
+    )
     p.add_argument(
         "--friction",
         type=_friction,
-        default=("viscous",),
+        default=("viscous", "coulomb", "offset"),
         help="joint terms, comma separated from viscous,coulomb,offset (friction) and armature "
         "(reflected motor inertia), or 'none'",
     )
@@ -546,9 +595,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--cutoff",
-        type=float,
-        default=DEFAULT_CUTOFF_HZ,
-        help="low-pass cut-off, Hz",
+        type=_cutoff,
+        default="auto",
+        help="low-pass cut-off, Hz, or 'auto': the one of 2..30 Hz that predicts held-out "
+        "torques best inside the training part (torchjfa.data.choose_cutoff; "
+        f"{DEFAULT_CUTOFF_HZ:g} Hz, with a warning, where the log is too short to choose)",
     )
     p.add_argument(
         "--filter",
@@ -607,7 +658,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--parametrization",
         choices=("virtual", "log-cholesky"),
-        default="virtual",
+        default="log-cholesky",
         help="the projection's parameters: the seed's virtual parameters (mass > 0, inertia "
         "PSD) or log-Cholesky, fully consistent (triangle inequalities too)",
     )

@@ -185,14 +185,18 @@ def undetermined(values, names, description) -> torch.Tensor:
 
 
 def _verdict(c: ConsistencyReport) -> str:
+    """One verdict, the consistency table's own ("yes"/"no", bodies failing of all), with why."""
+    n = len(c.joint_names)
     if c.ok:
-        return "yes (fully: pseudo-inertia positive definite)"
+        return f"yes (all {n} bodies: pseudo-inertia positive definite, friction >= 0)"
+    n_bad = int((~c.body_ok).sum())
     if c.weakly_ok:
         return (
-            "mass > 0 and inertia PSD (the seed's eq. 5) yes, triangle inequalities no "
-            "(--parametrization log-cholesky enforces them)"
+            f"no ({n_bad} of {n} bodies fail: the triangle inequalities or a positive "
+            "definite pseudo-inertia; mass > 0 and inertia PSD, the seed's eq. 5, hold; "
+            "--parametrization log-cholesky enforces all)"
         )
-    return "NO"
+    return f"no ({n_bad} of {n} bodies fail)"
 
 
 @dataclass(eq=False)
@@ -345,6 +349,7 @@ class IdentificationReport:
                 if self.settings.get("preparation")
                 else []
             ),
+            *([f"- cut-off: {self.settings['cutoff']}"] if self.settings.get("cutoff") else []),
             f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
             f"{', '.join(self.model.friction) or 'none'}",
             f"- estimator: `{s['estimator']}`" + self._noise_mode(),

@@ -1,7 +1,8 @@
 """torchjfa.data: joint logs from files, and their preparation for identification.
 
 `read_log` reads CSV, NPZ and Parquet logs into a `JointLog`; `prepare` resamples, filters,
-differentiates, trims and decimates it; `differentiate` is the filter and derivatives alone;
+differentiates, trims and decimates it; `choose_cutoff` picks its filter's cut-off from the
+data; `differentiate` is the filter and derivatives alone;
 `check_log` finds logs that cannot identify anything (gaps, no motion, degrees, scrambled
 columns); `coverage` says where another log's motion goes beyond the identification log's.
 """
@@ -11,6 +12,9 @@ from ._checks import check_log as check_log
 from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
 from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage
+from ._cutoff import CutoffChoice as CutoffChoice
+from ._cutoff import choose_cutoff as choose_cutoff
+from ._cutoff import cutoff_grid as cutoff_grid
 from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ
 from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate

@@ -1,0 +1,102 @@
+"""`torchjfa identify` with its defaults: a cut-off chosen from the data, Coulomb and offset
+friction, log-Cholesky (full consistency), OLS; one consistency verdict in the report."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from torchjfa.cli import main
+
+
+@pytest.fixture(scope="module")
+def head_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("logs") / "head.csv"
+    assert main(["simulate", "head", "--out", str(path), "--n-samples", "5040", "--quiet"]) == 0
+    return path
+
+
+def _identify(capsys, *args):
+    code = main(["identify", *map(str, args)])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _verdicts(md: str) -> tuple[str, str]:
+    """The header's verdict of the identified parameters and the consistency table's."""
+    (header,) = re.findall(r"physically consistent, identified: (yes|no \(\d+ of \d+)", md)
+    (table,) = re.findall(r"physically consistent: (yes|no \(\d+ of \d+)", md)
+    return header, table
+
+
+def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
+    head_csv, tmp_path, capsys, monkeypatch
+):
+    import torchjfa.data
+
+    seen = []
+    choose = torchjfa.data.choose_cutoff
+
+    def spy(model, log, **kwargs):
+        seen.append(float(log.t[-1]))
+        return choose(model, log, **kwargs)
+
+    monkeypatch.setattr(torchjfa.data, "choose_cutoff", spy)
+    out = tmp_path / "r"
+    code, stdout, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
+        "--no-plots",
+    )  # fmt: skip
+    assert code == 0, err
+    report = json.loads((out / "report.json").read_text())
+    cutoff = report["settings"]["prepare"]["cutoff_hz"]
+    # one of the default grid's cut-offs (2..30 Hz), below the 420 Hz log's Nyquist frequency
+    assert 2.0 <= cutoff <= 30.0
+    md = (out / "report.md").read_text()
+    assert f"- cut-off: {cutoff:g} Hz, chosen by held-out torque prediction over 2..30 Hz" in md
+    assert "estimator: `OLS(" in md
+    assert "friction viscous, coulomb, offset" in md
+    # log-Cholesky: fully consistent, and the header says the table's verdict
+    assert report["consistent"]
+    assert _verdicts(md) == ("yes", "yes")
+    assert "physically consistent: yes" in stdout
+    # the choice saw none of the held-out part
+    with np.load(out / "validation.npz") as z:
+        first_held_out = float(z["t"][0])
+    (last_seen,) = seen
+    assert last_seen < first_held_out
+
+
+def test_the_header_verdict_is_the_tables_with_virtual_parameters(head_csv, tmp_path, capsys):
+    out = tmp_path / "v"
+    code, stdout, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
+        "--no-plots", "--parametrization", "virtual", "--cutoff", "20",
+    )  # fmt: skip
+    assert code == 0, err
+    md = (out / "report.md").read_text()
+    header, table = _verdicts(md)
+    assert header == table
+    report = json.loads((out / "report.json").read_text())
+    assert header.startswith("yes") == report["consistent"]
+
+
+def test_a_log_too_short_to_choose_falls_back_with_a_warning(head_csv, tmp_path, capsys):
+    # 5 s: the training part (4 s) is shorter than the 5 s that 3 blocks and the 1 s reach of
+    # the 2 Hz filter need
+    code, _, err = _identify(
+        capsys, "head", head_csv, "--out", tmp_path / "s", "--smoke", "--smoke-seconds", "5",
+        "--quiet", "--jackknife", "0", "--no-plots",
+    )  # fmt: skip
+    assert code == 0, err
+    assert "warning: --cutoff auto:" in err and "too short to choose a cut-off" in err
+    assert "20 Hz used" in err
+
+
+@pytest.mark.parametrize("bad", ["0", "-3", "fast", "inf"])
+def test_a_bad_cut_off_is_refused(head_csv, tmp_path, capsys, bad):
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "head", str(head_csv), "--out", str(tmp_path), "--cutoff", bad])
+    assert exc.value.code == 2
+    assert "expected 'auto' or a positive cut-off in Hz" in capsys.readouterr().err
