@@ -42,7 +42,7 @@ def load(folder: Path) -> JointLog:
     )
 
 
-def run(cutoff: float = 8.0, weights=("auto", 1.0, 10.0), folder: Path = DATA):
+def run(cutoff: float = 8.0, weights=("auto", 10.0, 100.0, 1000.0), folder: Path = DATA):
     if not folder.is_dir():
         print(f"skipped: no data in {folder}")
         return None

@@ -586,8 +586,9 @@ def identify(
             so that directions the data determine barely move; ``"auto"`` chooses it from
             `PRIOR_WEIGHTS` by fitting the estimator and projecting on all but the last of the
             training blocks (the jackknife's or cross-validation's, else `_PRIOR_BLOCKS`
-            contiguous blocks) and predicting the last one: the weight with the lowest
-            held-out error wins (the larger one on ties within 0.1%). None (default): no prior.
+            contiguous blocks) and predicting the last one: the largest weight whose held-out
+            RMS error is within `PRIOR_TOLERANCE` (1%) of the lowest wins (the description is
+            taken as far as it does not hurt the fit). None (default): no prior.
             Needs ``project=True``.
 
     Returns:
@@ -657,7 +658,8 @@ def identify(
             estimator, folds, model, noise, parametrization, options
         )
         best = min(prior_choice.values())
-        description_prior = max(w for w, v in prior_choice.items() if v <= best * 1.001)
+        ok = [w for w, v in prior_choice.items() if v <= best * (1.0 + PRIOR_TOLERANCE)]
+        description_prior = max(ok)
     estimator.fit_moments(folds if estimator._needs_folds() else moments)
     theta_hat = estimator.coef_.detach().to(torch.float64)
     if noise is None and hasattr(estimator, "noise_x_"):
@@ -702,7 +704,9 @@ def identify(
 
 #: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
 #: w gives each parameter a prior standard deviation of its physical scale / sqrt(w)
-PRIOR_WEIGHTS = (0.0, 0.01, 0.1, 1.0, 10.0, 100.0)
+PRIOR_WEIGHTS = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
+#: "auto" takes the largest weight whose held-out error is within this fraction of the best
+PRIOR_TOLERANCE = 0.01
 
 
 def _prior_options(model, moments: Moments, theta_hat: torch.Tensor, weight: float) -> dict:
