@@ -162,3 +162,28 @@ def test_bad_input():
         base_parameters(Moments.zeros(2), names=("a.m", "b.m"))
     with pytest.raises(ValueError, match="names"):
         base_parameters(Moments.zeros(2), names=("a.m",))
+
+
+def test_units_do_not_change_what_the_data_determine(two_link):
+    """Measuring parameters in other units (X columns times c_k, theta_k and the description
+    divided by c_k, one c per kind) changes no rank, status or condition number (the column scaling removes the units), and the
+    regrouping coefficients by the unit ratios c_dep / c_ind."""
+    Y, tau, _ = _random_moments(two_link, 300)
+    # one unit per kind (the physical scales are per kind): g, cm-ish, odd units for I and fv
+    from torchjfa.physical._base import parameter_kind
+
+    unit = {"m": 1e3, "mc": 1e-2, "I": 3e4, "fv": 0.1}
+    c = torch.tensor(
+        [unit[parameter_kind(n)] for n in two_link.parameter_names], dtype=torch.float64
+    )
+    ref = base_parameters(Moments.from_data(Y, tau), two_link)
+    new = base_parameters(  # the description in the new units too
+        Moments.from_data(Y * c, tau), names=two_link.parameter_names,
+        description=two_link.nominal_theta / c,
+    )  # fmt: skip
+    assert new.rank == ref.rank and new.status == ref.status
+    assert new.condition_number == pytest.approx(ref.condition_number, rel=1e-9)
+    assert new.independent == ref.independent
+    ind, dep = list(ref.independent), list(ref.dependent)
+    expected = ref.beta * c[dep].unsqueeze(0) / c[ind].unsqueeze(1)  # X_dep c_dep = X_B c_B beta'
+    torch.testing.assert_close(new.beta, expected, rtol=1e-8, atol=1e-12)

@@ -26,8 +26,8 @@ alone (`torchjfa.Moments`), so it works on logs of any length:
 Each parameter is then ``"determined"`` (it lies in the determined subspace, so the data fix
 it alone), ``"combination"`` (structurally only in combination with others), ``"poorly
 excited"`` (identifiable in principle, but this log leaves it to the noise) or ``"not
-excited"`` (its regressor column is zero, or below ``rtol`` of the largest column's energy:
-zero up to rounding).
+excited"`` (its regressor column is zero, or below ``rtol`` of the energy of the largest
+column of its kind: zero up to rounding).
 """
 
 from __future__ import annotations
@@ -270,10 +270,16 @@ def base_parameters(
     M = moments.xtx.to(torch.float64).cpu()
     M = 0.5 * (M + M.T)
     diag = torch.diagonal(M).clamp_min(0)
-    # a column whose energy is below rtol of the largest is zero up to rounding (a regressor
-    # entry that cancels exactly in exact arithmetic comes out ~eps of its terms): scaling it
-    # to unit norm would make rounding look like a parameter of its own
-    excited = diag > rtol * float(diag.max())
+    # a column whose energy is below rtol of the largest of its kind (the same units: the test
+    # does not depend on the units of each kind) is zero up to rounding (a regressor entry that
+    # cancels in exact arithmetic comes out ~eps of its terms): scaling it to unit norm would
+    # make rounding look like a parameter of its own
+    kinds = [parameter_kind(n) for n in names]
+    largest = {}
+    for k, v in zip(kinds, diag.tolist(), strict=True):
+        largest[k] = max(largest.get(k, 0.0), v)
+    floor = torch.tensor([rtol * largest[k] for k in kinds], dtype=torch.float64)
+    excited = diag > floor
     M = torch.where(excited.unsqueeze(0) & excited.unsqueeze(1), M, torch.zeros_like(M))
     diag = torch.where(excited, diag, torch.zeros_like(diag))
     if not bool(excited.any()):
@@ -357,8 +363,8 @@ def base_parameters(
 def _pivots(C: torch.Tensor, rank: int) -> tuple[int, ...]:
     """The first ``rank`` pivots of a Cholesky factorisation of C with diagonal pivoting: each
     step takes the column with the largest residual norm after projecting out the columns
-    chosen so far (exactly the pivots of QR with column pivoting of a factor of C); ties go
-    to the first."""
+    chosen so far (exactly the pivots of QR with column pivoting of a factor of C); ties
+    within 1e-9 relative go to the first."""
     d = C.shape[0]
     residual = torch.diagonal(C).clone()
     L = C.new_zeros(d, rank)
@@ -367,7 +373,9 @@ def _pivots(C: torch.Tensor, rank: int) -> tuple[int, ...]:
         r = residual.clone()
         if chosen:
             r[chosen] = -math.inf
-        j = int(torch.argmax(r))
+        # the first column within 1e-9 of the largest residual: ties, which rounding would
+        # break at random (the scaled diagonal starts all ones), go to the first column
+        j = int(torch.nonzero(r >= r.max() * (1 - 1e-9))[0])
         col = (C[:, j] - L[:, :k] @ L[j, :k]) / r[j].clamp_min(1e-300).sqrt()
         L[:, k] = col
         residual = residual - col.pow(2)
