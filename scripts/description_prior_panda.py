@@ -42,7 +42,7 @@ def load(folder: Path) -> JointLog:
     )
 
 
-def run(cutoff: float = 8.0, weights=("auto", 10.0, 100.0, 1000.0), folder: Path = DATA):
+def run(cutoff: float = 8.0, weights=("auto",), folder: Path = DATA):
     if not folder.is_dir():
         print(f"skipped: no data in {folder}")
         return None
@@ -81,7 +81,7 @@ def run(cutoff: float = 8.0, weights=("auto", 10.0, 100.0, 1000.0), folder: Path
         )
         if res.prior_choice:
             print(
-                "  choice (held-out RMS on the last training block): "
+                "  choice (cross-validated RMS over the training blocks): "
                 + ", ".join(f"{k:g}: {v:.4f}" for k, v in res.prior_choice.items())
             )
     print("link masses, kg:")

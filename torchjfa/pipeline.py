@@ -451,8 +451,8 @@ class IdentificationResult:
             ``theta_hat_std`` (for the spread of combinations, e.g. base parameters), or None.
         prior_weight: the weight of the description prior in the projection (see
             ``identify(..., description_prior=...)``), or None when there was none.
-        prior_choice: with ``description_prior="auto"``: weight -> held-out RMS torque error on
-            the last block of the training data (N m, weighted equations), else None.
+        prior_choice: with ``description_prior="auto"``: weight -> cross-validated RMS torque
+            error over the blocks of the training data (N m, weighted equations), else None.
     """
 
     model: RigidBodyModel
@@ -584,11 +584,12 @@ def identify(
             deviation ``p_k / sqrt(w)`` per parameter against the residual noise (see
             `_prior_options`; w = 1: one physical scale, e.g. the description's RMS link mass),
             so that directions the data determine barely move; ``"auto"`` chooses it from
-            `PRIOR_WEIGHTS` by fitting the estimator and projecting on all but the last of the
-            training blocks (the jackknife's or cross-validation's, else `_PRIOR_BLOCKS`
-            contiguous blocks) and predicting the last one: the largest weight whose held-out
-            RMS error is within `PRIOR_TOLERANCE` (1%) of the lowest wins (the description is
-            taken as far as it does not hurt the fit). None (default): no prior.
+            `PRIOR_WEIGHTS` by cross-validation over contiguous blocks of the training data
+            (the jackknife's or cross-validation's, else `_PRIOR_BLOCKS`): each block is
+            predicted from the estimator fitted and projected on the others; the largest weight
+            whose held-out RMS error is within `PRIOR_TOLERANCE` (1%) of the lowest wins (the
+            description is taken as far as it does not hurt the fit). None (default): no
+            prior.
             Needs ``project=True``.
 
     Returns:
@@ -703,8 +704,10 @@ def identify(
 
 
 #: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
-#: w gives each parameter a prior standard deviation of its physical scale / sqrt(w)
-PRIOR_WEIGHTS = (0.0, 0.1, 1.0, 10.0, 100.0, 1000.0)
+#: w gives each parameter a prior standard deviation of its physical scale / sqrt(w). Above
+#: ~100 the prior also shrinks the weakly determined directions towards the description (a
+#: ridge towards it, not only a tie-break): the held-out block decides whether that helps
+PRIOR_WEIGHTS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)
 #: "auto" takes the largest weight whose held-out error is within this fraction of the best
 PRIOR_TOLERANCE = 0.01
 
@@ -759,29 +762,33 @@ def _check_description_prior(value, options, project: bool) -> bool:
 
 
 def _choose_prior_weight(estimator, folds, model, noise, parametrization, options):
-    """weight -> held-out RMS on the last block, fitting and projecting on the others."""
+    """weight -> held-out RMS over the blocks, each predicted from a fit and projection on the
+    others (cross-validation over the training blocks)."""
     import copy
 
-    train, held = folds[:-1], folds[-1]
-    est = copy.deepcopy(estimator)
-    if hasattr(est, "verbose"):
-        est.verbose = False
-    est.fit_moments(train if est._needs_folds() else sum(train[1:], train[0].copy()))
-    theta_hat = est.coef_.detach().to(torch.float64)
-    fold_noise = noise
-    if fold_noise is None and hasattr(est, "noise_x_"):
-        fold_noise = est.noise_x_.detach().to(torch.float64)
-    moments = sum(train[1:], train[0].copy())
-    out = {}
-    for w in PRIOR_WEIGHTS:
-        theta = _project(
-            theta_hat,
-            layout=model,
-            moments=moments,
-            input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
-            parametrization=parametrization,
-            **{"ridge": 0.0 if w > 0 else 1e-8, **options},
-            **_prior_options(model, moments, theta_hat, w),
-        ).theta.to(torch.float64)
-        out[w] = float((held.rss(theta).clamp_min(0.0) / held.n).sqrt())
-    return out
+    rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
+    n = 0.0
+    for k, held in enumerate(folds):
+        train = folds[:k] + folds[k + 1 :]
+        est = copy.deepcopy(estimator)
+        if hasattr(est, "verbose"):
+            est.verbose = False
+        est.fit_moments(train if est._needs_folds() else sum(train[1:], train[0].copy()))
+        theta_hat = est.coef_.detach().to(torch.float64)
+        fold_noise = noise
+        if fold_noise is None and hasattr(est, "noise_x_"):
+            fold_noise = est.noise_x_.detach().to(torch.float64)
+        moments = sum(train[1:], train[0].copy())
+        for w in PRIOR_WEIGHTS:
+            theta = _project(
+                theta_hat,
+                layout=model,
+                moments=moments,
+                input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
+                parametrization=parametrization,
+                **{"ridge": 0.0 if w > 0 else 1e-8, **options},
+                **_prior_options(model, moments, theta_hat, w),
+            ).theta.to(torch.float64)
+            rss[w] += float(held.rss(theta).clamp_min(0.0))
+        n += float(held.n)
+    return {w: (v / n) ** 0.5 for w, v in rss.items()}

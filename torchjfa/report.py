@@ -361,14 +361,21 @@ class IdentificationReport:
             how = ""
             if r.prior_choice:
                 how = (
-                    " (chosen on the last training block: "
+                    " (chosen by cross-validation over the training blocks: "
                     + ", ".join(f"{w:g}: {v:.4g} N m" for w, v in r.prior_choice.items())
                     + ")"
+                )
+            edge = ""
+            if r.prior_choice and r.prior_weight == max(r.prior_choice) > 0:
+                edge = (
+                    " The largest weight tried won: the held-out blocks prefer the description "
+                    "even where the data have a say (prior std = each kind's typical size / "
+                    f"{math.sqrt(r.prior_weight):.3g})."
                 )
             lines += [
                 "",
                 f"Where the data are silent the projection was pulled towards the description "
-                f"with weight {r.prior_weight:g}{how}.",
+                f"with weight {r.prior_weight:g}{how}.{edge}",
             ]
         return lines + [""]
 
