@@ -42,7 +42,7 @@ def load(folder: Path) -> JointLog:
     )
 
 
-def run(cutoff: float = 8.0, weights=("auto",), folder: Path = DATA):
+def run(cutoff: float = 8.0, weights=("auto", 100.0, 1e4), folder: Path = DATA):
     if not folder.is_dir():
         print(f"skipped: no data in {folder}")
         return None
@@ -74,7 +74,8 @@ def run(cutoff: float = 8.0, weights=("auto",), folder: Path = DATA):
         rows[label] = rms
         masses[label] = res.theta.reshape(7, -1)[:, 0]
         print(
-            f"{label}: held-out mean RMS {float(rms.mean()):.4f} N m, per joint "
+            f"{label}: held-out mean RMS {float(rms.mean()):.4f} N m (quadratic mean "
+            f"{float(rms.pow(2).mean().sqrt()):.4f}), per joint "
             + " ".join(f"{float(v):.3f}" for v in rms)
             + f"; train RMS {res.rmse():.4f}; fully consistent {check(res.theta, model).ok}; "
             f"{time.perf_counter() - start:.1f} s"
