@@ -362,3 +362,25 @@ def test_help_of_every_command_shows_every_default():
     assert identify["--cutoff"].endswith("(default: auto)")
     assert identify["--parametrization"].endswith("(default: log-cholesky)")
     assert identify["--estimator"].endswith("(default: ols)")
+
+
+def test_description_prior_option(head_csv, tmp_path, capsys):
+    out = tmp_path / "prior"
+    code, stdout, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--smoke", *FAST, "--estimator", "ols",
+        "--description-prior", "10",
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads((out / "report.json").read_text())
+    assert summary["prior_weight"] == 10.0
+    assert summary["base_parameters"]["rank"] > 0
+    assert "## What the data determine" in (out / "report.md").read_text()
+    for bad in (["--description-prior", "-1"], ["--description-prior", "x"]):
+        with pytest.raises(SystemExit) as exc:
+            main(["identify", "head", str(head_csv), "--out", str(out), *bad])
+        assert exc.value.code == 2
+        assert "expected 'auto' or a weight >= 0" in capsys.readouterr().err
+    code, _, err = _identify(
+        capsys, "head", head_csv, "--out", out, "--no-project", "--description-prior", "auto"
+    )
+    assert code == 2 and "drop --no-project" in err and "Traceback" not in err

@@ -376,3 +376,50 @@ def test_residual_joint_weights_are_inverse_ols_residual_variances(head, files):
         model, files[1], estimator=OLS(fit_intercept=False), joint_weights=w, project=False
     )
     torch.testing.assert_close(result.joint_weights, w)
+
+
+def _two_link_log(n=600, seed=0):
+    model = RigidBodyModel.from_urdf(TWO_LINK)
+    g = torch.Generator().manual_seed(seed)
+    q, qd, qdd = (torch.randn(n, 2, generator=g, dtype=torch.float64) for _ in range(3))
+    Y = model.regressor(q, qd, qdd)
+    theta = model.nominal_theta.clone()
+    theta[model.parameter_names.index("j1.fv")] = 0.1
+    tau = Y @ theta + 0.01 * torch.randn(n, 2, generator=g, dtype=torch.float64)
+    return model, {"q": q, "qd": qd, "qdd": qdd, "tau": tau}
+
+
+def test_description_prior_options():
+    from torchjfa.estimators import OLS
+    from torchjfa.pipeline import PRIOR_WEIGHTS
+
+    model, log = _two_link_log()
+    plain = identify(model, log, estimator=OLS(fit_intercept=False), jackknife=3)
+    assert plain.prior_weight is None and plain.prior_choice is None
+    assert plain.theta_hat_jackknife.shape == (3, model.n_params)
+    # weight 0: the plain projection, exactly (same moments, no prior term)
+    zero = identify(
+        model, log, estimator=OLS(fit_intercept=False), jackknife=3, description_prior=0
+    )
+    assert torch.equal(zero.theta, plain.theta) and zero.prior_weight == 0.0
+    auto = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+    assert set(auto.prior_choice) == set(PRIOR_WEIGHTS) and auto.prior_weight in PRIOR_WEIGHTS
+    assert auto.folds is None  # the blocks of the choice are not the result's folds
+    assert all(v > 0 for v in auto.prior_choice.values())
+    # an out-of-plane parameter (a zero column) goes towards the description with a prior
+    # (not all the way at the default tol: the prior's curvature is ~1/N of the data's, below
+    # the stopping test's resolution; tol=1e-10 gets within 0.1% with "virtual")
+    strong = identify(model, log, estimator=OLS(fit_intercept=False), description_prior=1.0)
+    i = model.parameter_names.index("j2.Ixx")
+    nominal = float(model.nominal_theta[i])
+    assert abs(float(strong.theta[i]) - nominal) < 0.2 * nominal
+    assert abs(float(strong.theta[i]) - nominal) < 0.5 * abs(float(plain.theta[i]) - nominal)
+    # and the fit is the data's: the training error within 1% of the plain projection's
+    assert strong.rmse() <= plain.rmse() * 1.01
+    for bad, match in ((-1.0, "weight >= 0"), ("best", "'auto'"), (True, "weight >= 0")):
+        with pytest.raises(ValueError, match=match):
+            identify(model, log, estimator=OLS(fit_intercept=False), description_prior=bad)
+    with pytest.raises(ValueError, match="project=True"):
+        identify(model, log, project=False, description_prior=1.0)
+    with pytest.raises(ValueError, match="do not also pass"):
+        identify(model, log, description_prior=1.0, projection_options={"prior_weight": 1.0})

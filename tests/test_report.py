@@ -1,5 +1,7 @@
 """The report's numbers and files, without the command line."""
 
+import math
+
 import matplotlib
 import numpy as np
 import pytest
@@ -236,7 +238,8 @@ def test_markdown_prints_undetermined_not_unphysical_numbers(report, tmp_path):
     md = bad.markdown()
     assert "e+29" not in md and "inf" not in md
     rows = {line.split(" | ")[0][2:]: line.split(" | ") for line in md.splitlines()
-            if line.startswith("| neck_")}  # fmt: skip
+            if line.startswith("| neck_") and " " not in line.split(" | ")[0][2:]}  # fmt: skip
+    # (a base combination's row also starts with "| neck_", its first cell has spaces)
     assert rows["neck_tilt.Ixx"][2] == "undetermined"  # unconstrained
     assert rows["neck_roll.mcz"][3] == "undetermined"  # jackknife std
     assert rows["neck_tilt.Ixx"][3] != "undetermined"  # its spread stays a number
@@ -285,3 +288,33 @@ def test_estimator_line_says_how_the_input_noise_was_set(report):
     assert line.endswith("used in the projection's metric only")
     line = next(x for x in report.markdown().splitlines() if x.startswith("- estimator:"))
     assert "input noise" not in line.split("`")[-1]  # no settings: nothing said
+
+
+def test_what_the_data_determine_section(report):
+    """The head's base parameters are in the report: their count, the condition number, each
+    parameter's status in the table and the combinations with their spreads."""
+    b = report.base
+    assert b is not None and 0 < b.rank < report.model.n_params
+    md = report.markdown()
+    assert "## What the data determine" in md
+    assert f"base (identifiable) parameters: **{b.rank}** of {report.model.n_params}" in md
+    assert f"{b.condition_number:.3g}" in md
+    rows = report.parameter_rows()
+    assert [r["data"] for r in rows] == list(b.status)
+    combos = [
+        r for r in report.base_rows() if " + " in r["combination"] or " - " in r["combination"]
+    ]
+    assert combos, "a fixed-base head has regrouped parameters"
+    for r in combos:
+        assert r["combination"] in md
+        assert r["jackknife_std"] is not None and math.isfinite(r["jackknife_std"])
+    # the base values are what the data see: Y theta = Y_B b(theta) on the held-out data
+    v = report.validation
+    Y = report.model.regressor(v.q, v.qd, v.qdd).reshape(-1, report.model.n_params)
+    theta = report.result.theta_hat
+    pred = Y[:, list(b.independent)] @ b.values(theta)
+    torch.testing.assert_close(
+        pred, Y @ theta, rtol=1e-7, atol=1e-7 * float((Y @ theta).abs().max())
+    )
+    summary = report.summary()["base_parameters"]
+    assert summary["rank"] == b.rank and summary["counts"] == b.counts()

@@ -200,6 +200,19 @@ def _chosen_cutoff(args, model, log) -> tuple[float, str, list[str]]:
     return choice.cutoff_hz, choice.how, []
 
 
+def _prior_weight(text: str):
+    """``--description-prior``: ``auto`` or a weight >= 0."""
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a weight >= 0, got {text!r}")
+    return value
+
+
 def _skip(text: str):
     if text == "auto":
         return text
@@ -289,6 +302,8 @@ def cmd_identify(args) -> int:
     from .report import _verdict, make_report
     from .sim import regressor_noise
 
+    if args.no_project and args.description_prior is not None:
+        raise UsageError("--description-prior acts in the projection: drop --no-project")
     model = load_model(args.robot, args.friction)
     read = {
         "columns": _columns(args.columns),
@@ -362,6 +377,7 @@ def cmd_identify(args) -> int:
         input_noise=input_noise,
         progress=not args.quiet,
         jackknife=args.jackknife,
+        description_prior=args.description_prior,
         joint_weights=weights,
         compiled=args.compiled,
     )
@@ -663,6 +679,14 @@ def build_parser() -> argparse.ArgumentParser:
         "PSD) or log-Cholesky, fully consistent (triangle inequalities too)",
     )
     p.add_argument("--no-project", action="store_true", help="skip the physical projection")
+    p.add_argument(
+        "--description-prior",
+        type=_prior_weight,
+        default=None,
+        help="pull the projection towards the description where the data are silent: a "
+        "weight >= 0 (prior std = a typical value of each kind / sqrt(weight)) or 'auto' "
+        "(chosen on a held-out block of the training data); default off",
+    )
     p.add_argument(
         "--max-iter", type=int, default=20_000, help="most EM iterations of JFA and Bayesian JFA"
     )

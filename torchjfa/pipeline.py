@@ -39,7 +39,7 @@ from .distributed import all_reduce_moments, rank_and_world_size, shard_range
 from .dynamics import InverseDynamics, RigidBodyModel
 from .estimators import BayesianJFA, LinearEstimator
 from .estimators import jackknife as _jackknife
-from .physical import ProjectionResult
+from .physical import ProjectionResult, parameter_scales
 from .physical import project as _project
 from .stats import Moments
 
@@ -447,6 +447,12 @@ class IdentificationResult:
             (`torchjfa.estimators.jackknife`) when ``identify(..., jackknife=K)``, else None.
         joint_weights: ``(n_dof,)`` the weights of each joint's equations, or None (all 1);
             the moments, and so `rmse`, are of the weighted equations.
+        theta_hat_jackknife: ``(K, n_params)`` the leave-one-block-out coefficients behind
+            ``theta_hat_std`` (for the spread of combinations, e.g. base parameters), or None.
+        prior_weight: the weight of the description prior in the projection (see
+            ``identify(..., description_prior=...)``), or None when there was none.
+        prior_choice: with ``description_prior="auto"``: weight -> cross-validated RMS torque
+            error over the blocks of the training data (N m, weighted equations), else None.
     """
 
     model: RigidBodyModel
@@ -460,6 +466,9 @@ class IdentificationResult:
     world_size: int = 1
     theta_hat_std: torch.Tensor | None = field(default=None, repr=False)
     joint_weights: torch.Tensor | None = field(default=None, repr=False)
+    theta_hat_jackknife: torch.Tensor | None = field(default=None, repr=False)
+    prior_weight: float | None = None
+    prior_choice: dict[float, float] | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
         return (
@@ -525,6 +534,7 @@ def identify(
     jackknife: int = 0,
     joint_weights=None,
     compiled: bool | None = None,
+    description_prior: float | str | None = None,
 ) -> IdentificationResult:
     """Identify a robot's parameters from joint logs in one streaming pass.
 
@@ -566,6 +576,21 @@ def identify(
             e.g. `residual_joint_weights`). ``input_noise`` must then be of the weighted rows
             (`torchjfa.sim.regressor_noise` takes the same weights).
         compiled: which path forms the regressor (see `stream_moments`).
+        description_prior: pull the projection towards the description (``model.nominal_theta``:
+            its inertials, zero friction) along the directions the data do not determine:
+            `torchjfa.physical.project` with ``prior=model.nominal_theta`` and
+            ``prior_scale=torchjfa.physical.parameter_scales(...)`` (each kind in its own
+            typical size). A number w >= 0 is the prior's weight: a Gaussian prior of standard
+            deviation ``p_k / sqrt(w)`` per parameter against the residual noise (see
+            `_prior_options`; w = 1: one physical scale, e.g. the description's RMS link mass),
+            so that directions the data determine barely move; ``"auto"`` chooses it from
+            `PRIOR_WEIGHTS` by cross-validation over contiguous blocks of the training data
+            (the jackknife's or cross-validation's, else `_PRIOR_BLOCKS`): each block is
+            predicted from the estimator fitted and projected on the others; the largest weight
+            whose held-out RMS error is within `PRIOR_TOLERANCE` (1%) of the lowest wins (the
+            description is taken as far as it does not hurt the fit). None (default): no
+            prior.
+            Needs ``project=True``.
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -602,11 +627,15 @@ def identify(
     bad = sorted(set(options) & set(_RESERVED))
     if bad:
         raise ValueError(f"projection_options may not set {bad}; identify sets them")
+    auto_prior = _check_description_prior(description_prior, options, project)
     jackknife = int(jackknife)
     if jackknife == 1 or jackknife < 0:
         raise ValueError(f"jackknife must be 0 (off) or at least 2 blocks, got {jackknife}")
     # estimators that choose a hyper-parameter by cross-validation need fold moments
     n_folds = int(estimator.cv) if estimator._needs_folds() else (jackknife or None)
+    keep_folds = n_folds is not None
+    if auto_prior and n_folds is None:
+        n_folds = _PRIOR_BLOCKS
     stats = stream_moments(
         model,
         logs,
@@ -621,9 +650,17 @@ def identify(
     )
     folds = stats if n_folds is not None else None
     moments = sum(stats[1:], stats[0].copy()) if folds is not None else stats
-    theta_hat_std = None
+    theta_hat_std = coefs = None
     if jackknife:
-        theta_hat_std = _jackknife(estimator, folds, progress=progress)[1]
+        coefs, theta_hat_std = _jackknife(estimator, folds, progress=progress)
+    prior_choice = None
+    if auto_prior:
+        prior_choice = _choose_prior_weight(
+            estimator, folds, model, noise, parametrization, options
+        )
+        best = min(prior_choice.values())
+        ok = [w for w, v in prior_choice.items() if v <= best * (1.0 + PRIOR_TOLERANCE)]
+        description_prior = max(ok)
     estimator.fit_moments(folds if estimator._needs_folds() else moments)
     theta_hat = estimator.coef_.detach().to(torch.float64)
     if noise is None and hasattr(estimator, "noise_x_"):
@@ -631,6 +668,10 @@ def identify(
     projection = None
     theta = theta_hat
     if project:
+        if description_prior is not None:
+            options.update(_prior_options(model, moments, theta_hat, float(description_prior)))
+            if float(description_prior) > 0:  # the prior breaks the ties; a ridge pulls to 0
+                options.setdefault("ridge", 0.0)
         projection = _project(
             theta_hat,
             layout=model,
@@ -641,7 +682,7 @@ def identify(
         )
         theta = projection.theta.detach().to(torch.float64)
     _, world = rank_and_world_size(group) if distributed else (0, 1)
-    return IdentificationResult(
+    out = IdentificationResult(
         model=model,
         theta=theta,
         theta_hat=theta_hat,
@@ -653,4 +694,101 @@ def identify(
         world_size=world,
         theta_hat_std=theta_hat_std,
         joint_weights=None if joint_weights is None else _joint_weights(joint_weights, model.n_dof),
+        theta_hat_jackknife=coefs,
+        prior_weight=None if description_prior is None else float(description_prior),
+        prior_choice=prior_choice,
     )
+    if not keep_folds:
+        out.folds = None
+    return out
+
+
+#: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
+#: w gives each parameter a prior standard deviation of its physical scale / sqrt(w). Above
+#: ~100 the prior also shrinks the weakly determined directions towards the description (a
+#: ridge towards it, not only a tie-break): the held-out block decides whether that helps
+PRIOR_WEIGHTS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)
+#: "auto" takes the largest weight whose held-out error is within this fraction of the best
+PRIOR_TOLERANCE = 0.01
+
+
+def _prior_options(model, moments: Moments, theta_hat: torch.Tensor, weight: float) -> dict:
+    """`project` options for the description prior of weight ``weight``.
+
+    The prior term ``weight * sigma^2 * sum_k ((theta_k - nominal_k) / p_k)^2`` beside eq. 8's
+    ``||y - X theta||^2 - const`` is a Gaussian prior of standard deviation ``p_k / sqrt(weight)``
+    on each parameter with ``sigma^2 = rss(theta_hat) / N`` the residual variance per row
+    (``p``: `parameter_scales` of the description). Every direction the data determine has an
+    eigenvalue of ``P X^T X P`` far above ``sigma^2`` (`torchjfa.physical.base_parameters`: above
+    100 sigma^2 for a tenth of the scale), so a weight of order 1 moves it by a fraction
+    ``weight sigma^2 / eigenvalue`` only; along the null space the prior decides. `project`'s
+    ``prior_weight`` is relative to ``s_p = sum_k p_k^2 M_kk / n_params``, hence the ratio."""
+    dev = moments.xtx.device
+    scale = parameter_scales(model.parameter_names, model.nominal_theta, moments).to(dev)
+    sigma2 = float(moments.rss(theta_hat.to(dev)).clamp_min(0.0) / moments.n)
+    s_p = float((scale.square() * torch.diagonal(moments.xtx)).sum()) / model.n_params
+    rel = weight * sigma2 / s_p if s_p > 0 else 0.0
+    return {
+        "prior": model.nominal_theta.to(dev),
+        "prior_scale": scale,
+        "prior_weight": rel,
+    }
+
+
+#: contiguous blocks of the training data for that choice when there are no others
+_PRIOR_BLOCKS = 5
+
+
+def _check_description_prior(value, options, project: bool) -> bool:
+    """Validate ``identify``'s ``description_prior``; True when it is ``"auto"``."""
+    if value is None:
+        return False
+    if "prior" in options or "prior_weight" in options or "prior_scale" in options:
+        raise ValueError(
+            "description_prior sets the projection's prior; do not also pass prior, "
+            "prior_weight or prior_scale in projection_options"
+        )
+    if not project:
+        raise ValueError("description_prior needs project=True (it acts in the projection)")
+    if isinstance(value, str):
+        if value != "auto":
+            raise ValueError(
+                f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}"
+            )
+        return True
+    if isinstance(value, bool) or not float(value) >= 0 or float(value) == float("inf"):
+        raise ValueError(f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}")
+    return False
+
+
+def _choose_prior_weight(estimator, folds, model, noise, parametrization, options):
+    """weight -> held-out RMS over the blocks, each predicted from a fit and projection on the
+    others (cross-validation over the training blocks)."""
+    import copy
+
+    rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
+    n = 0.0
+    for k, held in enumerate(folds):
+        train = folds[:k] + folds[k + 1 :]
+        est = copy.deepcopy(estimator)
+        if hasattr(est, "verbose"):
+            est.verbose = False
+        est.fit_moments(train if est._needs_folds() else sum(train[1:], train[0].copy()))
+        theta_hat = est.coef_.detach().to(torch.float64)
+        fold_noise = noise
+        if fold_noise is None and hasattr(est, "noise_x_"):
+            fold_noise = est.noise_x_.detach().to(torch.float64)
+        moments = sum(train[1:], train[0].copy())
+        for w in PRIOR_WEIGHTS:
+            theta = _project(
+                theta_hat,
+                layout=model,
+                moments=moments,
+                input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
+                parametrization=parametrization,
+                **{"ridge": 0.0 if w > 0 else 1e-8, **options},
+                **_prior_options(model, moments, theta_hat, w),
+            ).theta.to(torch.float64)
+            rss[w] += float(held.rss(theta).clamp_min(0.0))
+        n += float(held.n)
+    return {w: (v / n) ** 0.5 for w, v in rss.items()}

@@ -32,7 +32,7 @@ import torch
 
 from ._report_figures import _kind, parameters_figure, torques_figure
 from .data import JointLog
-from .physical import ConsistencyReport, check
+from .physical import BaseParameters, ConsistencyReport, base_parameters, check
 from .pipeline import IdentificationResult
 
 __all__ = [
@@ -213,6 +213,8 @@ class IdentificationReport:
         consistency_unconstrained: `ConsistencyReport` of the unconstrained estimate.
         noise: noise estimates (see `make_report`).
         settings: how the data were prepared and the model identified (for the record).
+        base: `torchjfa.physical.BaseParameters` of the training moments (what the data
+            determine), or None when they excite nothing.
     """
 
     result: IdentificationResult
@@ -222,6 +224,7 @@ class IdentificationReport:
     consistency_unconstrained: ConsistencyReport
     noise: dict[str, object]
     settings: dict[str, object]
+    base: BaseParameters | None = None
 
     @property
     def model(self):
@@ -276,8 +279,109 @@ class IdentificationReport:
             row: dict[str, object] = {"parameter": name}
             row.update({k: None if v is None else v[i] for k, v in cols.items()})
             row["excited"] = bool(excited[i])
+            row["data"] = None if self.base is None else self.base.status[i]
             rows.append(row)
         return rows
+
+    def base_rows(self) -> list[dict[str, object]]:
+        """One dict per base parameter (`torchjfa.physical.base_parameters`): the combination
+        as text, its unconstrained and identified values, its least-squares std and its
+        jackknife spread (None without ``identify(..., jackknife=K)``)."""
+        b = self.base
+        if b is None:
+            return []
+        r = self.result
+        values = {
+            "unconstrained": b.values(r.theta_hat.cpu()),
+            "identified": b.values(r.theta.cpu()),
+        }
+        jack = (
+            None if r.theta_hat_jackknife is None else b.jackknife_std(r.theta_hat_jackknife.cpu())
+        )
+        rows = []
+        for k, text in enumerate(b.combinations()):
+            rows.append(
+                {
+                    "combination": text,
+                    "identified": float(values["identified"][k]),
+                    "unconstrained": float(values["unconstrained"][k]),
+                    "ls_std": float(b.std[k]),
+                    "jackknife_std": None if jack is None else float(jack[k]),
+                }
+            )
+        return rows
+
+    def _base_markdown(self) -> list[str]:
+        """The section "What the data determine" (`base_parameters` of the training data)."""
+        b = self.base
+        lines = ["## What the data determine", ""]
+        if b is None:
+            return lines + ["The training data excite no parameter.", ""]
+        c = b.counts()
+        lines += [
+            f"- base (identifiable) parameters: **{b.rank}** of {b.n_params}; "
+            f"{b.n_determined} of them determined to {b.resolution:g} of their physical scale "
+            f"by this log (residual noise std {math.sqrt(max(b.noise_var, 0.0)):.3g} per row)",
+            f"- condition number of the column-scaled base regression: {b.condition_number:.3g}",
+            f"- parameters: {c['determined']} determined alone, {c['combination']} only in "
+            f"combination with others (their single values are not determined: read the "
+            f"combinations below), {c['poorly excited']} poorly excited (identifiable, but this "
+            f"log leaves them to the noise), {c['not excited']} not excited (zero regressor "
+            "column)",
+            "",
+            "Base parameters that combine several parameters (each is `first + sum coef x "
+            "other`; the data determine the combination, not its terms); std: least squares "
+            "(white noise, a lower bound); jackknife: delete-one-block spread.",
+            "",
+            "| base parameter | identified | unconstrained | std | jackknife std |",
+            "|---|---|---|---|---|",
+        ]
+        n = 0
+        for k, row in enumerate(self.base_rows()):
+            if " + " not in row["combination"] and " - " not in row["combination"]:
+                continue
+            n += 1
+            # beyond any physical scale (as in the parameter table): the first term's scale
+            bound = UNDETERMINED_FACTOR * max(float(b.scales[b.independent[k]]), _UNIT_SCALE)
+            cells = []
+            for key, fmt in (
+                ("identified", ".4g"),
+                ("unconstrained", ".4g"),
+                ("ls_std", ".3g"),
+                ("jackknife_std", ".3g"),
+            ):
+                v = row[key]
+                if v is None:
+                    cells.append("-")
+                elif not math.isfinite(v) or abs(v) > bound:
+                    cells.append("undetermined")
+                else:
+                    cells.append(format(v, fmt))
+            lines.append(f"| {row['combination']} | " + " | ".join(cells) + " |")
+        if not n:
+            lines.append("| (none: every base parameter is a single parameter) | | | | |")
+        r = self.result
+        if r.prior_weight is not None:
+            how = ""
+            if r.prior_choice:
+                how = (
+                    " (chosen by cross-validation over the training blocks: "
+                    + ", ".join(f"{w:g}: {v:.4g} N m" for w, v in r.prior_choice.items())
+                    + ")"
+                )
+            edge = ""
+            if r.prior_choice and r.prior_weight == max(r.prior_choice) > 0:
+                edge = (
+                    " The largest weight tried won: the held-out blocks prefer the description "
+                    "even where the data have a say (prior std = each kind's typical size / "
+                    f"{math.sqrt(r.prior_weight):.3g})."
+                )
+            lines += [
+                "",
+                f"Where the data are silent the projection was pulled towards the description "
+                f"with weight {r.prior_weight:g}{how}.{edge}",
+            ]
+        return lines + [""]
 
     def summary(self) -> dict[str, object]:
         """The report's numbers as plain JSON-ready values."""
@@ -304,6 +408,16 @@ class IdentificationReport:
             "noise": self.noise,
             "settings": self.settings,
             "parameters": self.parameter_rows(),
+            "base_parameters": None
+            if self.base is None
+            else {
+                "rank": self.base.rank,
+                "n_determined": self.base.n_determined,
+                "condition_number": self.base.condition_number,
+                "counts": self.base.counts(),
+                "combinations": self.base_rows(),
+            },
+            "prior_weight": self.result.prior_weight,
         }
 
     # ------------------------------------------------------------------------- figures
@@ -392,6 +506,7 @@ class IdentificationReport:
             lines.append(f"- {k}: {v}")
         lines += ["", "## Physical consistency of the identified parameters", "", "```"]
         lines += [self.consistency.table(), "```", ""]
+        lines += self._base_markdown()
         lines += [
             "## Parameters",
             "",
@@ -400,11 +515,13 @@ class IdentificationReport:
             "estimate over delete-one-block refits; posterior std: Bayesian JFA's mean-field "
             "spread (a lower bound, see docs/report.md); relevance: Bayesian JFA's <alpha> "
             "(large means the data call the parameter irrelevant); description: the robot "
-            "file's value. Units: kg, kg m, kg m^2, N m s/rad, N m.",
+            "file's value; data: what the data determine (see above: determined, combination, "
+            "poorly excited, zero column). Units: kg, kg m, "
+            "kg m^2, N m s/rad, N m.",
             "",
             "| parameter | identified | unconstrained | jackknife std | posterior std | "
-            "relevance | description |",
-            "|---|---|---|---|---|---|---|",
+            "relevance | description | data |",
+            "|---|---|---|---|---|---|---|---|",
         ]
 
         rows = s["parameters"]
@@ -425,6 +542,9 @@ class IdentificationReport:
                 else:
                     cells.append(f"{v:.4g}")
             n_silent += not row["excited"]
+            # "zero column": the data column's word for base_parameters' "not excited" (which
+            # also counts columns that are zero up to rounding)
+            cells.append({"not excited": "zero column"}.get(row["data"], row["data"] or "-"))
             lines.append(f"| {row['parameter']} | " + " | ".join(cells) + " |")
         if n_silent:
             lines += [
@@ -554,7 +674,12 @@ def make_report(
         noise["torque noise std per joint, N m"] = _numbers(
             period_noise.output_noise_per_joint.sqrt()
         )
+    try:
+        base = base_parameters(result.moments, model)
+    except ValueError:  # the data excite nothing: the report says so
+        base = None
     return IdentificationReport(
+        base=base,
         result=result,
         validation=validation,
         fits=fits,

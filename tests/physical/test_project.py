@@ -358,3 +358,95 @@ def test_projection_of_a_vanishing_mass_with_a_first_moment(parametrization, m):
     assert result.cost <= min(
         result.initial_cost, _cost(_clip_baseline(theta_hat, layout), theta_hat, M)
     )
+
+
+def _prior_problem(g, n_joints=2):
+    """Consistent theta_hat and prior (point clouds), a metric that never excites the last
+    body, and per-parameter scales of mixed sizes."""
+    layout = make_layout(n_joints)
+    theta_hat, prior = _cloud_theta(layout, g), _cloud_theta(layout, g)
+    X = torch.randn(200, layout.n_params, generator=g, dtype=torch.float64)
+    k = layout.params_per_joint
+    X[:, -k:] = 0.0
+    scale = torch.rand(layout.n_params, generator=g, dtype=torch.float64) + 0.1
+    return layout, theta_hat, prior, X.T @ X, scale
+
+
+def test_scaled_prior_reaches_the_written_out_quadratic_optimum():
+    """min (theta - theta_hat)^T M (theta - theta_hat) + w s_p sum ((theta - p) / p_k)^2 with
+    s_p = sum_k p_k^2 M_kk / d has the closed form (M + w s_p W)^-1 (M theta_hat + w s_p W p),
+    W = diag(p^-2); when that is consistent it is the projection."""
+    layout, theta_hat, prior, M, scale = _prior_problem(torch.Generator().manual_seed(21))
+    w = 1e-3
+    s_p = float((scale.square() * torch.diagonal(M)).sum()) / layout.n_params
+    W = torch.diag(scale.pow(-2))
+    expected = torch.linalg.solve(M + w * s_p * W, M @ theta_hat + w * s_p * W @ prior)
+    assert check(expected, layout).ok  # the closed form is inside the consistent set
+    result = project(
+        theta_hat,
+        layout=layout,
+        metric=M,
+        prior=prior,
+        prior_weight=w,
+        prior_scale=scale,
+        ridge=0.0,
+        tol=1e-12,
+        parametrization="log-cholesky",
+    )
+    # the stopping test resolves the objective to ~1e-12 of its value at 0; along the
+    # unexcited body the curvature is only ~w = 1e-3 of the data's, so the parameters there are
+    # resolved to ~sqrt(1e-12 / 1e-3) = 3e-5 of their size (~1): 2e-4
+    torch.testing.assert_close(result.theta, expected, rtol=0, atol=2e-4)
+    k = layout.params_per_joint
+    torch.testing.assert_close(result.theta[-k:], prior[-k:], rtol=0, atol=2e-4)
+
+
+def test_scaled_prior_leaves_the_data_directions_unchanged_to_first_order():
+    """Along the excited body the shift from theta_hat is O(weight): ten times smaller weight,
+    ten times smaller shift (to 10%: the next order is O(weight^2))."""
+    layout, theta_hat, prior, M, scale = _prior_problem(torch.Generator().manual_seed(22))
+    k = layout.params_per_joint
+    shifts = []
+    for w in (1e-3, 1e-4):
+        r = project(
+            theta_hat,
+            layout=layout,
+            metric=M,
+            prior=prior,
+            prior_weight=w,
+            prior_scale=scale,
+            ridge=0.0,
+            tol=1e-12,
+        )
+        shifts.append(float((r.theta[:-k] - theta_hat[:-k]).norm()))
+    assert shifts[0] > 0 and 9.0 < shifts[0] / shifts[1] < 11.0
+
+
+def test_scaled_prior_limits_and_scale_equivariance():
+    layout, theta_hat, prior, M, scale = _prior_problem(torch.Generator().manual_seed(23))
+    bad = _inconsistent(layout, torch.Generator().manual_seed(24))
+    # weight 0: today's projection, exactly
+    ref = project(bad, layout=layout, metric=M)
+    zero = project(bad, layout=layout, metric=M, prior=prior, prior_weight=0.0, prior_scale=scale)
+    assert torch.equal(ref.theta, zero.theta)
+    # scales all 1: the plain prior term
+    kw = {"layout": layout, "metric": M, "prior": prior, "prior_weight": 1e-3, "tol": 1e-10}
+    plain = project(bad, **kw)
+    ones = project(bad, **kw, prior_scale=torch.ones(layout.n_params, dtype=torch.float64))
+    torch.testing.assert_close(ones.theta, plain.theta, rtol=0, atol=1e-9)
+    # theta_hat, prior and scales x c: the answer x c (the normalised problem is the same up to
+    # rounding, so the same path: 1e-8 relative)
+    base = project(bad, **{**kw, "prior_scale": scale})
+    for c in (1e-3, 1e4):
+        r = project(
+            c * bad,
+            layout=layout,
+            metric=M,
+            prior=c * prior,
+            prior_weight=1e-3,
+            prior_scale=c * scale,
+            tol=1e-10,
+        )
+        torch.testing.assert_close(r.theta / c, base.theta, rtol=1e-6, atol=1e-8)
+    with pytest.raises(ValueError, match="prior_scale must be positive"):
+        project(bad, **{**kw, "prior_scale": torch.zeros(layout.n_params, dtype=torch.float64)})

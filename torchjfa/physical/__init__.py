@@ -5,8 +5,13 @@
 - `project`: the consistent theta closest to an unconstrained estimate in the data's metric
   ``X^T X + N diag(input noise)`` (eq. 8), by LBFGS on either parametrisation.
 - `check`: per-body mass, inertia, triangle-inequality, pseudo-inertia and friction checks.
+- `base_parameters`: what the data determine (base parameters, their combinations, the
+  condition number, and per parameter: determined, in combination, poorly or not excited).
 """
 
+from ._base import BaseParameters as BaseParameters
+from ._base import base_parameters as base_parameters
+from ._base import parameter_scales as parameter_scales
 from ._check import ConsistencyReport as ConsistencyReport
 from ._check import check as check
 from ._parametrizations import LogCholeskyParameters as LogCholeskyParameters

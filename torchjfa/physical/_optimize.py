@@ -22,26 +22,31 @@ class Problem:
         M: ``(d, d)`` the metric.
         ridge, prior_weight: dimensionless weights, multiplied by ``tr(M) / d``.
         prior: ``(d,)`` or None.
+        prior_w: ``(d,)`` per-parameter weights of the prior term, or None (all 1).
     """
 
-    def __init__(self, theta_hat, M, ridge, prior, prior_weight):
+    def __init__(self, theta_hat, M, ridge, prior, prior_weight, prior_w=None):
         d = theta_hat.shape[0]
         scale = torch.diagonal(M).sum() / d
         self.theta_hat, self.prior, self.M = theta_hat, prior, M
         self.ridge = ridge * scale
         self.weight = prior_weight * scale if prior is not None else 0.0
+        # per-parameter weights of the prior term (``(d,)``, mean-diagonal normalised), or 1
+        self.prior_w = prior_w if prior is not None and prior_w is not None else None
         with torch.no_grad():
             norm = float(self.objective(torch.zeros_like(theta_hat)))
         self.norm = norm if norm > 0 else float(scale)
         eye = torch.eye(d, dtype=M.dtype, device=M.device)
-        self.hess = 2.0 * (M + (self.ridge + self.weight) * eye) / self.norm  # of `loss`
+        w = eye if self.prior_w is None else torch.diag(self.prior_w)
+        self.hess = 2.0 * (M + self.ridge * eye + self.weight * w) / self.norm  # of `loss`
 
     def objective(self, theta: torch.Tensor) -> torch.Tensor:
         """Eq. 8 plus the ridge and prior terms (see `project`), 0-d."""
         delta = theta - self.theta_hat
         f = delta @ (self.M @ delta) + self.ridge * (theta @ theta)
         if self.prior is not None:
-            f = f + self.weight * ((theta - self.prior) ** 2).sum()
+            sq = (theta - self.prior) ** 2
+            f = f + self.weight * (sq if self.prior_w is None else self.prior_w * sq).sum()
         return f
 
     def loss(self, theta: torch.Tensor) -> torch.Tensor:

@@ -173,6 +173,7 @@ def project(
     parametrization: str = "virtual",
     prior=None,
     prior_weight: float = 0.0,
+    prior_scale=None,
     ridge: float = 1e-8,
     max_iter: int = 1000,
     tol: float = 1e-5,
@@ -187,6 +188,7 @@ def project(
                                                                   training residual sum of squares
             + ridge * s * ||theta||^2                            tie-break in the null space of M
             + prior_weight * s * ||theta - prior||^2             optional pull to nominal values
+              (with ``prior_scale`` p: prior_weight * s_p * sum_k ((theta_k - prior_k) / p_k)^2)
 
     with ``M = X^T X + N diag(input_noise)`` from ``moments`` (or ``M = metric``) and
     ``s = tr(M) / n_params``, by ``torch.optim.LBFGS`` with a strong-Wolfe line search.
@@ -201,7 +203,19 @@ def project(
     would force the consistent parameters to imitate. Parameters the data do not excite thus
     end small (an unexcited mass can end near 0), and are determined only loosely (the ridge is
     1e-8 of the data's weight, below the stopping test's resolution). A ``prior`` (CAD values)
-    is the better way to pin what the data do not determine. A theta_hat that is already
+    is the better way to pin what the data do not determine.
+
+    The description as a prior. With ``prior_scale`` (``(n_params,)`` positive, in each
+    parameter's units, e.g. `parameter_scales` of the description: a typical mass, first
+    moment, inertia), the prior term is ``prior_weight * s_p * sum_k ((theta_k - prior_k) /
+    p_k)^2`` with ``s_p = sum_k p_k^2 M_kk / n_params``, the data's mean weight of a change of
+    one physical scale: every parameter is pulled towards the description in units of its
+    kind, and ``prior_weight=1`` weighs a deviation of one physical scale like the data weigh
+    an average one. Along directions the data determine (eigenvalues of ``P M P`` far above
+    ``prior_weight * s_p``) the solution moves only by O(prior_weight * s_p / eigenvalue);
+    along the null space the prior decides. The term scales like eq. 8 under theta_hat,
+    prior, prior_scale -> c (...), so the projection stays scale-equivariant;
+    ``prior_scale`` of all ones is the plain prior term above. A theta_hat that is already
     consistent (exactly representable by the parametrisation) minimises eq. 8 and is returned
     unchanged when no prior is given.
 
@@ -245,6 +259,8 @@ def project(
             triangle inequalities).
         prior: nominal (e.g. CAD) parameters, ``(n_params,)``; needs ``prior_weight > 0``.
         prior_weight: weight of the prior term, dimensionless (see above).
+        prior_scale: ``(n_params,)`` positive per-parameter scales of the prior term (see
+            above), or None (the same weight for every parameter).
         ridge: weight of the tie-break term, dimensionless, >= 0.
         max_iter: largest number of LBFGS iterations (per phase with the warm start).
         tol: relative decrease of the objective over one cycle of 25 iterations below which
@@ -290,6 +306,15 @@ def project(
         prior = _check_theta(prior, layout, "prior").to(device=device, dtype=torch.float64)
     if float(prior_weight) > 0 and prior is None:
         raise ValueError("prior_weight > 0 needs prior= (nominal parameters, shape (n_params,))")
+    prior_w = None
+    if prior_scale is not None:
+        p = _check_theta(prior_scale, layout, "prior_scale").to(device=device, dtype=torch.float64)
+        if not bool((p > 0).all()):
+            raise ValueError("prior_scale must be positive (a scale per parameter, its units)")
+        # (sum_k p_k^2 M_kk / d) / p_k^2 relative to the isotropic term's tr(M) / d: invariant
+        # under the problem's rescaling below
+        diag = torch.diagonal(M)
+        prior_w = (p.square() * diag).sum() / diag.sum() / p.square()
     # the problem is solved in units where theta_hat's size (`_unit_of`) and M's mean diagonal
     # are ~1, then scaled back: eq. 8 and the consistent set are
     # invariant under theta -> s theta (s > 0), so the answer for s theta_hat is s times the
@@ -300,7 +325,7 @@ def project(
     unit = _unit_of(th, M_n, prior)
     th_n = th / unit
     prior_n = prior / unit if prior is not None and float(prior_weight) > 0 else None
-    problem = Problem(th_n, M_n, float(ridge), prior_n, float(prior_weight))
+    problem = Problem(th_n, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
 
     cls = PARAMETRIZATIONS[parametrization]
     with single_thread():
