@@ -11,6 +11,7 @@ import tracemalloc
 import numpy as np
 import pytest
 import torch
+from _robots import TWO_LINK
 
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA, Ridge
@@ -202,21 +203,6 @@ def test_identify_projects_and_returns_inverse_dynamics(head, reference, files):
     residual = Y @ result.theta - log.tau
     assert result.rmse() == pytest.approx(float(residual.square().mean().sqrt()), rel=1e-8)
     assert rel(result.inverse_dynamics(projected=False).theta.detach(), result.theta_hat) == 0
-
-
-TWO_LINK = """<?xml version="1.0"?>
-<robot name="two_link">
-  <link name="base"/>
-  <link name="l1"><inertial><origin xyz="0.2 0 0"/><mass value="1.0"/>
-    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial></link>
-  <link name="l2"><inertial><origin xyz="0.15 0.01 0"/><mass value="0.5"/>
-    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.006" iyz="0" izz="0.005"/></inertial></link>
-  <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
-    <axis xyz="0 1 0"/></joint>
-  <joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/>
-    <origin xyz="0.4 0 0"/><axis xyz="0 1 0"/></joint>
-</robot>
-"""
 
 
 @pytest.mark.parametrize("save", [np.savez, np.savez_compressed])

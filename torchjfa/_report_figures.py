@@ -9,18 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .physical._base import parameter_kind
+
 __all__ = ["torques_figure", "parameters_figure"]
-
-
-def _kind(name: str) -> str:
-    """A parameter's kind from its name: ``m``, ``mc`` (first moments), ``I`` (inertia) or the
-    friction/joint term's own suffix (``fv``, ``fc``, ...)."""
-    short = name.rsplit(".", 1)[-1]
-    if short.startswith("mc"):
-        return "mc"
-    if short.startswith("I"):
-        return "I"
-    return short
 
 
 def _figure(path, rows: int, **kw):
@@ -190,7 +181,7 @@ def parameters_figure(rows, flags, path=None):
     groups = _body_groups(names)
     for _, first, _ in groups[1:]:
         ax.axvline(first - 0.5, color="0.8", lw=0.8, zorder=0)
-    kinds = np.array([_kind_group(_kind(nm)) for nm in names])
+    kinds = np.array([_kind_group(parameter_kind(nm)) for nm in names])
     handles = []
     for kind, (label, color, marker) in _KIND_STYLE.items():
         sel = plotted & (kinds == kind)

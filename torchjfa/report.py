@@ -30,9 +30,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ._report_figures import _kind, parameters_figure, torques_figure
+from ._report_figures import parameters_figure, torques_figure
 from .data import JointLog
 from .physical import BaseParameters, ConsistencyReport, base_parameters, check
+from .physical._base import parameter_kind
 from .pipeline import IdentificationResult
 
 __all__ = [
@@ -175,7 +176,7 @@ def undetermined(values, names, description) -> torch.Tensor:
     """
     v = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
     d = torch.as_tensor(description, dtype=torch.float64).reshape(-1).abs()
-    kinds = [_kind(n) for n in names]
+    kinds = [parameter_kind(n) for n in names]
     scale = {k: _UNIT_SCALE for k in kinds}
     for k, x in zip(kinds, d.tolist(), strict=True):
         if math.isfinite(x):

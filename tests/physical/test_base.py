@@ -4,26 +4,12 @@ import numpy as np
 import pytest
 import scipy.linalg
 import torch
+from _robots import TWO_LINK
 
 import torchjfa
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.physical import BaseParameters, base_parameters, parameter_scales
 from torchjfa.stats import Moments
-
-# a planar 2R arm in the vertical x-z plane (axes along y, gravity along -z), l1 = 0.4 m
-TWO_LINK = """<?xml version="1.0"?>
-<robot name="two_link">
-  <link name="base"/>
-  <link name="l1"><inertial><origin xyz="0.2 0 0"/><mass value="1.0"/>
-    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial></link>
-  <link name="l2"><inertial><origin xyz="0.15 0.01 0"/><mass value="0.5"/>
-    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.006" iyz="0" izz="0.005"/></inertial></link>
-  <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
-    <axis xyz="0 1 0"/></joint>
-  <joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/>
-    <origin xyz="0.4 0 0"/><axis xyz="0 1 0"/></joint>
-</robot>
-"""
 
 
 def _random_moments(model, n, noise=0.01, seed=0):
