@@ -99,3 +99,39 @@ def test_period_noise_above_half_a_columns_power_is_capped_with_a_warning():
     assert "2 regressor column(s)" in warning and names[3] in warning and names[40] in warning
     fine = PeriodNoise(0.1 * power, torch.tensor(1.0), torch.ones(7), {}, 3, 10, power)
     assert _cap_period_noise(model, fine) == (fine, [])
+
+
+def test_a_validation_log_is_checked_too(head_log, tmp_path, capsys):
+    train = tmp_path / "train.csv"
+    write_log(head_log, train)
+    t = head_log.t.clone()
+    t[2500:] += 2.0
+    bad = tmp_path / "valid.csv"
+    write_log(JointLog(**{**vars(head_log), "t": t, "info": {}}), bad)
+    code = main(
+        [
+            "identify",
+            "head",
+            str(train),
+            "--validation-log",
+            str(bad),
+            "--out",
+            str(tmp_path / "o"),
+            *FAST,
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and "valid.csv: time jumps by 2 s" in _one_line(err)
+
+
+def test_report_json_names_the_estimator_without_dumping_its_arrays(head_log, tmp_path, capsys):
+    import json
+
+    code, _, err = _run(
+        capsys, head_log, tmp_path, "--estimator", "bayes-jfa", "--max-iter", "300",
+        "--input-noise", "periods",
+    )  # fmt: skip
+    assert code == 0, err
+    settings = json.loads((tmp_path / "out" / "report.json").read_text())["settings"]
+    assert settings["estimator"].startswith("BayesianJFA(")
+    assert "tensor(" not in settings["estimator"] and "input_noise=(given" in settings["estimator"]

@@ -299,7 +299,7 @@ def cmd_identify(args) -> int:
 
     from .data import prepare, read_log
     from .pipeline import identify, residual_joint_weights
-    from .report import _verdict, make_report
+    from .report import _verdict, estimator_text, make_report
     from .sim import regressor_noise
 
     if args.no_project and args.description_prior is not None:
@@ -329,6 +329,7 @@ def cmd_identify(args) -> int:
     data = prepare(log, **prep)
     if args.validation_log:
         vlog = read_log(args.validation_log, **read).reorder(model.joint_names)
+        warnings += _log_warnings(vlog, model)
         train, valid = data, prepare(vlog, **{**prep, "skip_start_s": 0.0})
         split = f"separate log {args.validation_log}"
     else:
@@ -401,7 +402,7 @@ def cmd_identify(args) -> int:
         "data": {k: v for k, v in info.items()},
         "identify_seconds": seconds,
         "input_noise": mode,
-        "estimator": repr(result.estimator),
+        "estimator": estimator_text(result.estimator),
         "weighting": args.weighting,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
     }
