@@ -6,7 +6,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from torchjfa.cli import _cap_period_noise, _coverage_warnings, main
+from torchjfa.cli import main
+from torchjfa.identification import cap_period_noise as _cap_period_noise
+from torchjfa.identification import coverage_warnings as _coverage_warnings
 from torchjfa.data import JointLog, read_log, write_log
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.sim import PeriodNoise, model_path

@@ -33,16 +33,16 @@ def _verdicts(md: str) -> tuple[str, str]:
 def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
     head_csv, tmp_path, capsys, monkeypatch
 ):
-    import torchjfa.data
+    import torchjfa.identification._stages as stages
 
     seen = []
-    choose = torchjfa.data.choose_cutoff
+    choose = stages.choose_cutoff
 
     def spy(model, log, **kwargs):
         seen.append(float(log.t[-1]))
         return choose(model, log, **kwargs)
 
-    monkeypatch.setattr(torchjfa.data, "choose_cutoff", spy)
+    monkeypatch.setattr(stages, "choose_cutoff", spy)
     out = tmp_path / "r"
     code, stdout, err = _identify(
         capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",

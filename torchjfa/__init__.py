@@ -14,6 +14,9 @@ from .dynamics import InverseDynamics as InverseDynamics
 from .dynamics import ParameterLayout as ParameterLayout
 from .dynamics import RigidBodyModel as RigidBodyModel
 from .estimators import BayesianJFA as BayesianJFA
+from .identification import Identification as Identification
+from .identification import Options as Options
+from .identification import identify as identify
 from .stats import Moments as Moments
 from .stats import kfold_moments as kfold_moments
 

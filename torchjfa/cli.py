@@ -18,20 +18,20 @@ import json
 import os
 import shlex
 import sys
-import time
 from pathlib import Path
 
+from .identification._options import ESTIMATOR_NAMES as ESTIMATORS
+from .identification._options import JOINT_TERMS as _FRICTION
+from .identification._options import IdentificationError
 from .sim import ROBOTS
 
 __all__ = ["main", "ESTIMATORS"]
 
-ESTIMATORS = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
-_FRICTION = ("viscous", "coulomb", "offset", "armature")  # joint terms
 _SIM_ROBOTS = tuple(ROBOTS)  # the simulated robots
 
 
-class UsageError(Exception):
-    """Bad input from the user: printed as one line, exit status 2."""
+#: bad input from the user: printed as one line, exit status 2 (the flow's own error)
+UsageError = IdentificationError
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -103,50 +103,11 @@ def _columns(text: str | None) -> dict[str, str] | None:
 
 
 def load_model(robot: str, friction: tuple[str, ...]):
-    """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name."""
-    from . import robots
-    from .dynamics import RigidBodyModel
-    from .sim import model_path
+    """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name
+    (`torchjfa.identification.load_model`)."""
+    from .identification import load_model as load
 
-    if robot in _SIM_ROBOTS:
-        path, fmt = str(model_path(robot)), "mjcf"
-    elif robot in robots.available():
-        path = robots.path(robot)
-        fmt = "urdf" if path.endswith(".urdf") else "mjcf"
-    else:
-        path = robot
-        if not os.path.isfile(path):
-            raise UsageError(
-                f"no robot file {path!r} (give a .urdf or MJCF .xml path, or one of "
-                f"{sorted(set(robots.available()) | set(_SIM_ROBOTS))})"
-            )
-        fmt = "urdf" if path.lower().endswith(".urdf") else "mjcf"
-    try:
-        if fmt == "urdf":
-            return RigidBodyModel.from_urdf(path, friction=friction)
-        return RigidBodyModel.from_mjcf(path, friction=friction)
-    except Exception as exc:  # the parsers raise many kinds; all mean "this file is not usable"
-        raise UsageError(
-            f"cannot build a robot model from {path!r}: {type(exc).__name__}: {exc}"
-        ) from None
-
-
-def _estimator(name: str, args):
-    from . import estimators as E
-
-    kw = {"fit_intercept": False}
-    if name == "bayes-jfa":
-        return E.BayesianJFA(max_iter=args.max_iter, ard=args.ard, **kw)
-    if name == "jfa":
-        return E.JFA(max_iter=args.max_iter, **kw)
-    return {
-        "ols": E.OLS,
-        "ridge": E.Ridge,
-        "tls": E.TLS,
-        "pls": E.PLS,
-        "lasso": E.Lasso,
-        "stepwise": E.Stepwise,
-    }[name](**kw)
+    return load(robot, friction)
 
 
 def _period(text: str):
@@ -174,32 +135,6 @@ def _cutoff(text: str):
     return value
 
 
-def _chosen_cutoff(args, model, log) -> tuple[float, str, list[str]]:
-    """``--cutoff``, or with 'auto' `choose_cutoff` on the training part of the raw log."""
-    from .data import DEFAULT_CUTOFF_HZ, LogError, choose_cutoff, cutoff_grid
-
-    if args.cutoff != "auto":
-        return float(args.cutoff), "given (--cutoff)", []
-    if not args.validation_log:
-        # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
-        # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
-        # 4 / 2 s at the grid's lowest cut-off
-        v = args.validation
-        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / cutoff_grid()[0]
-        log = log.select(log.t < log.t[0] + end)
-    try:
-        choice = choose_cutoff(
-            model, log, method=args.filter, velocity=args.velocity, compiled=args.compiled
-        )
-    except LogError as exc:
-        return (
-            DEFAULT_CUTOFF_HZ,
-            "the default: the log is too short to choose one (see the warnings)",
-            [f"--cutoff auto: {exc}; {DEFAULT_CUTOFF_HZ:g} Hz used"],
-        )
-    return choice.cutoff_hz, choice.how, []
-
-
 def _prior_weight(text: str):
     """``--description-prior``: ``auto`` or a weight >= 0."""
     if text == "auto":
@@ -223,220 +158,73 @@ def _skip(text: str):
 
 
 # ------------------------------------------------------------------------------ identify
-def _enough(n_samples: int, model, where: str) -> None:
-    """At least as many equations (samples x joints) as parameters."""
-    rows = n_samples * model.n_dof
-    if rows < model.n_params:
-        raise UsageError(
-            f"{where} {n_samples} samples: with {model.n_dof} joints that is {rows} equations "
-            f"for {model.n_params} parameters; record a longer log"
-        )
+def identify_options(args):
+    """The `torchjfa.identification.Options` that ``torchjfa identify``'s arguments give."""
+    from .identification import Compute, Options
 
-
-def _log_warnings(log, model) -> list[str]:
-    """`check_log` with the description's limits: fatal problems stop, the rest are returned."""
-    import numpy as np
-
-    from .data import check_log
-
-    limits = None
-    if model.chain is not None:
-        lo, hi = model.chain.get_joint_limits()
-        order = list(model.chain.get_joint_parameter_names())
-        if sorted(order) == sorted(model.joint_names):
-            lim = np.stack([np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)], axis=1)
-            limits = lim[[order.index(j) for j in model.joint_names]]
-    problems = check_log(log, limits=limits)
-    fatal = [p.message for p in problems if p.fatal]
-    if fatal:
-        raise UsageError(fatal[0])
-    return [p.message for p in problems]
-
-
-def _cap_period_noise(model, pnoise) -> tuple[object, list[str]]:
-    """Period noise of at least half a column's mean square (a column whose signal the spread
-    between periods swamps) capped at half of it, with a warning: the estimators refuse noise
-    at or above a column's variance, and de-attenuating such a column more than 2x amplifies
-    its noise."""
-    from dataclasses import replace
-
-    import torch
-
-    power = pnoise.column_power
-    noise = pnoise.input_noise
-    bad = (noise >= 0.5 * power) & (power > 1e-20 * power.max())  # not round-off columns
-    if not bool(bad.any()):
-        return pnoise, []
-    names = [model.layout.parameter_names[i] for i in bad.nonzero().flatten().tolist()]
-    shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
-    capped = replace(pnoise, input_noise=torch.where(bad, 0.5 * power, noise))
-    return capped, [
-        f"the spread between periods is at least half the signal of {len(names)} regressor "
-        f"column(s) ({shown}): their input noise is capped at half their mean square; the "
-        "parameters they carry are barely determined by this log"
-    ]
-
-
-def _coverage_warnings(train, valid) -> list[str]:
-    """Where the held-out data move beyond the identification data (extrapolation)."""
-    from .data import coverage
-
-    lines = coverage(
-        (train.q, train.qd, train.qdd),
-        (valid.q, valid.qd, valid.qdd),
-        joint_names=train.joint_names,
-    ).warnings()
-    if not lines:
-        return []
-    return [
-        "the held-out data move beyond the identification data, so their errors measure "
-        "extrapolation: " + "; ".join(lines)
-    ]
+    estimator_options = {}
+    if args.estimator in ("bayes-jfa", "jfa"):
+        estimator_options["max_iter"] = args.max_iter
+    if args.estimator == "bayes-jfa":
+        estimator_options["ard"] = args.ard
+    return Options(
+        friction=args.friction,
+        columns=_columns(args.columns),
+        time_scale=args.time_scale,
+        drop_nan=args.drop_nan,
+        max_seconds=args.smoke_seconds if args.smoke else None,
+        cutoff=args.cutoff,
+        filter=args.filter,
+        velocity=args.velocity,
+        period=args.period,
+        skip_start=args.skip_start,
+        decimate=args.decimate,
+        validation=args.validation,
+        estimator=args.estimator,
+        estimator_options=estimator_options,
+        weighting=args.weighting,
+        input_noise=args.input_noise,
+        jackknife=args.jackknife,
+        project=not args.no_project,
+        parametrization=args.parametrization,
+        description_prior=args.description_prior,
+        compute=Compute(progress=not args.quiet, compiled=args.compiled),
+    )
 
 
 def cmd_identify(args) -> int:
-    import torch
+    import warnings
 
-    from .data import prepare, read_log
-    from .pipeline import identify, residual_joint_weights
-    from .report import _verdict, estimator_text, make_report
-    from .sim import regressor_noise
+    from .identification import IdentificationWarning, identify
 
     if args.no_project and args.description_prior is not None:
         raise UsageError("--description-prior acts in the projection: drop --no-project")
-    model = load_model(args.robot, args.friction)
-    read = {
-        "columns": _columns(args.columns),
-        "time_scale": args.time_scale,
-        "drop_nan": args.drop_nan,
-    }
-    log = read_log(args.log, **read).reorder(model.joint_names)
-    _enough(log.n_samples, model, "the log has")
-    warnings = _log_warnings(log, model)
-    if args.smoke:  # a quick check of the whole command: the first few seconds only
-        keep = int(torch.searchsorted(log.t, log.t[0] + args.smoke_seconds)) + 1
-        log = log.select(slice(0, min(keep, log.n_samples)))
-    cutoff, how, cut_warnings = _chosen_cutoff(args, model, log)
-    warnings += cut_warnings
-    prep = {
-        "cutoff_hz": cutoff,
-        "method": args.filter,
-        "velocity": args.velocity,
-        "period_s": args.period,
-        "skip_start_s": args.skip_start,
-        "decimate": args.decimate,
-    }
-    data = prepare(log, **prep)
-    if args.validation_log:
-        vlog = read_log(args.validation_log, **read).reorder(model.joint_names)
-        warnings += _log_warnings(vlog, model)
-        train, valid = data, prepare(vlog, **{**prep, "skip_start_s": 0.0})
-        split = f"separate log {args.validation_log}"
-    else:
-        # the gap keeps the filter's reach (4 / cutoff s) from linking the two parts
-        gap = int(4.0 / cutoff * data.info["rate_hz"])
-        train, valid = data.split(args.validation, gap=gap)
-        split = f"last {args.validation:.0%} of the log, {gap} samples apart"
-    _enough(train.n_samples, model, "after filtering and the validation split, training has")
-    weights = None
-    if args.weighting == "residual":
-        weights = residual_joint_weights(model, train, compiled=args.compiled)
-    pnoise = None
-    if train.period_samples is not None and train.n_samples >= 2 * train.period_samples:
-        pnoise = regressor_noise(model, train, joint_weights=weights)
-    input_noise = None
-    if pnoise is not None:
-        pnoise, capped = _cap_period_noise(model, pnoise)
-        warnings += capped
-    mode = args.input_noise
-    if mode == "auto":
-        mode = "periods" if pnoise is not None else "learn"
-        if mode == "learn" and args.estimator == "bayes-jfa":
-            print(
-                "warning: no periodic excitation found, so Bayesian JFA learns the input noise; "
-                "its noiseless-input estimate (eq. 4) is then not identified by the data (see "
-                "docs/report.md): compare with --estimator ols",
-                file=sys.stderr,
-            )
-    if mode == "periods":
-        if pnoise is None:
-            raise UsageError(
-                "--input-noise periods needs a periodic excitation with at least two periods "
-                "in the training data; none was found (use --period SECONDS or --input-noise learn)"
-            )
-        input_noise = pnoise.input_noise
-    est = _estimator(args.estimator, args)
-    if input_noise is not None and hasattr(est, "input_noise"):
-        est.input_noise = input_noise
-    started = time.perf_counter()
-    result = identify(
-        model,
-        train,
-        estimator=est,
-        project=not args.no_project,
-        parametrization=args.parametrization,
-        input_noise=input_noise,
-        progress=not args.quiet,
-        jackknife=args.jackknife,
-        description_prior=args.description_prior,
-        joint_weights=weights,
-        compiled=args.compiled,
-    )
-    seconds = time.perf_counter() - started
-    info = data.info
-    preparation = (
-        f"{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
-        + (", resampled" if info["resampled"] else "")
-        + f"; {args.filter} cut-off {cutoff:g} Hz, velocities {info['velocity']}"
-        + (f"; period {info['period_s']:.6g} s" if info["period_s"] else "; no period")
-        + f"; dropped {info['dropped_start_s']:.3g} s at the start, {info['dropped_end_s']:.3g} s "
-        f"at the end; decimated x{args.decimate} to {info['rate_hz']:.6g} Hz"
-    )
-    settings = {
-        "robot": args.robot,
-        "log": str(args.log),
-        "validation": split,
-        "preparation": preparation,
-        "cutoff": f"{cutoff:g} Hz, {how}",
-        "prepare": {k: v for k, v in prep.items()},
-        "data": {k: v for k, v in info.items()},
-        "identify_seconds": seconds,
-        "input_noise": mode,
-        "estimator": estimator_text(result.estimator),
-        "weighting": args.weighting,
-        "command": "torchjfa " + " ".join(shlex.quote(a) for a in args.argv),
-    }
-    warnings += _coverage_warnings(train, valid)
-    settings["warnings"] = warnings
-    report = make_report(result, valid, period_noise=pnoise, settings=settings)
-    paths = report.write(args.out, plots=not args.no_plots)
-    fit = report.fits["identified"]
-    print(
-        f"identified {model.n_params} parameters of {args.robot} from {train.n_samples} samples "
-        f"in {seconds:.1f} s; physically consistent: {_verdict(report.consistency)}"
-    )
-    print(
-        f"held-out torque nMSE {fit.mean_nmse:.4g} (per joint: "
-        + ", ".join(f"{j} {float(v):.3g}" for j, v in zip(model.joint_names, fit.nmse, strict=True))
-        + ")"
-    )
-    if not getattr(result.estimator, "converged_", True):
+    command = "torchjfa " + " ".join(shlex.quote(a) for a in args.argv)
+    with warnings.catch_warnings():  # printed below, after the report's path
+        warnings.simplefilter("ignore", IdentificationWarning)
+        ident = identify(
+            args.robot,
+            args.log,
+            identify_options(args),
+            validation_log=args.validation_log,
+            settings={"command": command},
+        )
+    paths = ident.write(args.out, plots=not args.no_plots)
+    for line in ident.headline():
+        print(line)
+    est = ident.result.estimator
+    if not getattr(est, "converged_", True):
         print(
-            f"warning: {type(result.estimator).__name__} stopped at --max-iter {args.max_iter} "
-            f"before its stopping rule held ({result.estimator.stop_reason_}); compare the "
-            "held-out errors with --estimator ols, or raise --max-iter",
+            f"warning: {type(est).__name__} stopped at --max-iter {args.max_iter} before its "
+            f"stopping rule held ({est.stop_reason_}); compare the held-out errors with "
+            "--estimator ols, or raise --max-iter",
             file=sys.stderr,
         )
     print(f"report: {paths['markdown']}")
-    for w in warnings:
+    for w in ident.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    if not fit.mean_nmse < 1.0:  # NaN too
-        raise UsageError(
-            f"the identified model predicts the held-out torques worse than their mean (nMSE "
-            f"{fit.mean_nmse:.3g}): this log does not identify {args.robot} ({train.duration:.3g} s "
-            "of training data); record a longer or richer excitation (report written to "
-            f"{paths['markdown']})"
-        )
+    if ident.problem():
+        raise UsageError(f"{ident.problem()} (report written to {paths['markdown']})")
     return 0
 
 

@@ -33,19 +33,37 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ._prior import (
+    PRIOR_BLOCKS,
+    PRIOR_TOLERANCE,
+    PRIOR_WEIGHTS,
+    check_description_prior,
+    choose_prior_weight,
+    pick_prior_weight,
+    prior_options,
+)
 from ._progress import progress_bar
 from ._validation import as_tensor, check_finite
 from .distributed import all_reduce_moments, rank_and_world_size, shard_range
 from .dynamics import InverseDynamics, RigidBodyModel
 from .estimators import BayesianJFA, LinearEstimator
 from .estimators import jackknife as _jackknife
-from .physical import ProjectionResult, parameter_scales
+from .physical import ProjectionResult
 from .physical import project as _project
 from .stats import Moments
 
 __all__ = [
+    "Estimate",
     "IdentificationResult",
+    "PRIOR_TOLERANCE",
+    "PRIOR_WEIGHTS",
+    "Projected",
+    "blocks_needed",
+    "check_estimator",
+    "estimate",
     "identify",
+    "noise_vector",
+    "project_estimate",
     "log_length",
     "residual_joint_weights",
     "stream_moments",
@@ -500,7 +518,9 @@ class IdentificationResult:
         return InverseDynamics(self.model, theta.detach().cpu(), trainable=trainable)
 
 
-def _noise_vector(input_noise, d: int) -> torch.Tensor | None:
+def noise_vector(input_noise, d: int) -> torch.Tensor | None:
+    """``input_noise`` (None, a scalar or ``(d,)`` variances) as a float64 ``(d,)`` tensor, with
+    a clear error on a wrong shape, NaN or a negative variance."""
     if input_noise is None:
         return None
     v = as_tensor(input_noise, name="input_noise", dtype=torch.float64)
@@ -515,6 +535,169 @@ def _noise_vector(input_noise, d: int) -> torch.Tensor | None:
     if bool((v < 0).any()):
         raise ValueError("input_noise holds variances and must be non-negative")
     return v
+
+
+def check_estimator(estimator) -> LinearEstimator:
+    """``estimator`` if it is an unfitted-or-fitted `LinearEstimator` without an intercept."""
+    if not isinstance(estimator, LinearEstimator):
+        raise TypeError(
+            f"estimator must be a torchjfa.estimators estimator, got {type(estimator).__name__}"
+        )
+    if estimator.fit_intercept:
+        raise ValueError(
+            f"{type(estimator).__name__}(fit_intercept=True) would fit a torque offset that "
+            "inverse dynamics cannot use; pass fit_intercept=False (add friction 'offset' "
+            "terms to the model for a per-joint offset)"
+        )
+    return estimator
+
+
+def blocks_needed(estimator: LinearEstimator, *, jackknife: int = 0, auto_prior: bool = False):
+    """How many contiguous blocks of the samples the moments must come in, or None (one whole).
+
+    The estimator's ``cv`` folds when it chooses a hyper-parameter by cross-validation, else the
+    jackknife's blocks, else `PRIOR_BLOCKS` for the description prior's choice."""
+    jackknife = int(jackknife)
+    if jackknife == 1 or jackknife < 0:
+        raise ValueError(f"jackknife must be 0 (off) or at least 2 blocks, got {jackknife}")
+    if estimator._needs_folds():
+        return int(estimator.cv)
+    if jackknife:
+        return int(jackknife)
+    return PRIOR_BLOCKS if auto_prior else None
+
+
+@dataclass
+class Estimate:
+    """What `estimate` returns: the fitted estimator and its unconstrained coefficients.
+
+    Attributes:
+        estimator: the fitted estimator.
+        theta_hat: ``(n_params,)`` float64, its ``coef_``.
+        input_noise: ``(n_params,)`` the input-noise variances given to `estimate`, or None.
+        theta_hat_std: ``(n_params,)`` the delete-one-block jackknife spread, or None.
+        theta_hat_jackknife: ``(K, n_params)`` the leave-one-block-out coefficients, or None.
+    """
+
+    estimator: LinearEstimator
+    theta_hat: torch.Tensor
+    input_noise: torch.Tensor | None = None
+    theta_hat_std: torch.Tensor | None = None
+    theta_hat_jackknife: torch.Tensor | None = None
+
+    @property
+    def metric_noise(self) -> torch.Tensor | None:
+        """The input noise of the projection's metric ``X^T X + N diag(noise)``: the given
+        `input_noise`, else the estimator's own estimate ``noise_x_`` (Bayesian JFA), else None."""
+        if self.input_noise is not None or not hasattr(self.estimator, "noise_x_"):
+            return self.input_noise
+        return self.estimator.noise_x_.detach().to(torch.float64).cpu()
+
+
+def estimate(
+    estimator: LinearEstimator,
+    moments: Moments,
+    folds: Sequence[Moments] | None = None,
+    *,
+    input_noise=None,
+    jackknife: bool = False,
+    progress: bool = False,
+) -> Estimate:
+    """Fit ``estimator`` (in place) on the training moments: the stage after `stream_moments`.
+
+    Args:
+        estimator: an estimator with ``fit_intercept=False`` (see `check_estimator`).
+        moments: `Moments` of all the training data.
+        folds: their contiguous blocks (`stream_moments(n_folds=...)`), needed by an estimator
+            that cross-validates and by the jackknife; None otherwise.
+        input_noise: the input-noise variances the projection will use (``(n_params,)``), or
+            None to take the estimator's ``noise_x_`` where it has one.
+        jackknife: also refit on all blocks but one for the spread (`jackknife`).
+        progress: show a progress bar over the jackknife's refits.
+    """
+    check_estimator(estimator)
+    if (estimator._needs_folds() or jackknife) and not folds:
+        raise ValueError(
+            f"{type(estimator).__name__} needs the fold moments here (cross-validation or the "
+            "jackknife): pass folds=stream_moments(..., n_folds=K)"
+        )
+    coefs = theta_hat_std = None
+    if jackknife:
+        coefs, theta_hat_std = _jackknife(estimator, folds, progress=progress)
+    estimator.fit_moments(list(folds) if estimator._needs_folds() else moments)
+    return Estimate(
+        estimator=estimator,
+        theta_hat=estimator.coef_.detach().to(torch.float64),
+        input_noise=noise_vector(input_noise, moments.n_features),
+        theta_hat_std=theta_hat_std,
+        theta_hat_jackknife=coefs,
+    )
+
+
+@dataclass
+class Projected:
+    """What `project_estimate` returns.
+
+    Attributes:
+        theta: ``(n_params,)`` float64 physically consistent parameters.
+        projection: the `torchjfa.physical.ProjectionResult`.
+        prior_weight: the description prior's weight, or None.
+        prior_choice: weight -> cross-validated RMS error when the weight was chosen ("auto").
+    """
+
+    theta: torch.Tensor
+    projection: ProjectionResult
+    prior_weight: float | None = None
+    prior_choice: dict[float, float] | None = None
+
+
+def project_estimate(
+    model: RigidBodyModel,
+    fit: Estimate,
+    moments: Moments,
+    folds: Sequence[Moments] | None = None,
+    *,
+    parametrization: str = "virtual",
+    description_prior: float | str | None = None,
+    options: Mapping | None = None,
+) -> Projected:
+    """Project an `Estimate` onto physically consistent parameters (the seed paper's eq. 8).
+
+    The metric is ``X^T X + N diag(fit.metric_noise)``; ``description_prior`` is as for
+    `identify` (``"auto"`` needs ``folds``, the training blocks it cross-validates over);
+    ``options`` are more `torchjfa.physical.project` keywords."""
+    options = dict(options or {})
+    bad = sorted(set(options) & set(_RESERVED))
+    if bad:
+        raise ValueError(f"projection_options may not set {bad}; identify sets them")
+    auto = check_description_prior(description_prior, options, True)
+    choice = None
+    if auto:
+        if not folds or len(folds) < 2:
+            raise ValueError("description_prior='auto' needs at least two training blocks")
+        choice = choose_prior_weight(
+            fit.estimator, folds, model, fit.input_noise, parametrization, options
+        )
+        description_prior = pick_prior_weight(choice)
+    if description_prior is not None:
+        options.update(prior_options(model, moments, fit.theta_hat, float(description_prior)))
+        if float(description_prior) > 0:  # the prior breaks the ties; a ridge pulls to 0
+            options.setdefault("ridge", 0.0)
+    noise = fit.metric_noise
+    projection = _project(
+        fit.theta_hat,
+        layout=model,
+        moments=moments,
+        input_noise=None if noise is None else noise.to(moments.xtx.device),
+        parametrization=parametrization,
+        **options,
+    )
+    return Projected(
+        theta=projection.theta.detach().to(torch.float64),
+        projection=projection,
+        prior_weight=None if description_prior is None else float(description_prior),
+        prior_choice=choice,
+    )
 
 
 def identify(
@@ -536,13 +719,14 @@ def identify(
     compiled: bool | None = None,
     description_prior: float | str | None = None,
 ) -> IdentificationResult:
-    """Identify a robot's parameters from joint logs in one streaming pass.
+    """Identify a robot's parameters from prepared joint logs in one streaming pass.
 
-    logs -> regressor rows (``chunk_size`` samples at a time) -> `Moments` -> ``estimator``
-    -> projection onto physically consistent parameters (the seed paper's eq. 8) ->
-    `IdentificationResult`. The regression matrix is never formed (see the module docstring);
-    the result equals fitting the same estimator on ``Moments.from_data`` of the whole
-    regressor, up to rounding.
+    logs -> `stream_moments` (regressor rows ``chunk_size`` samples at a time) -> `estimate`
+    -> `project_estimate` (the seed paper's eq. 8) -> `IdentificationResult`. The regression
+    matrix is never formed (see the module docstring); the result equals fitting the same
+    estimator on ``Moments.from_data`` of the whole regressor, up to rounding. For a raw log
+    (filtering, differentiation, validation split, weighting and noise from the log) use
+    `torchjfa.identify`, which calls this.
 
     Args:
         model: the robot (`RigidBodyModel`).
@@ -557,40 +741,33 @@ def identify(
         parametrization: ``"virtual"`` (eq. 5) or ``"log-cholesky"`` (also the triangle
             inequalities), see `torchjfa.physical.project`.
         input_noise: per-column input-noise variance of the regressor, scalar or
-            ``(n_params,)`` (e.g. `torchjfa.sim.regressor_noise` ``.input_noise``). Used by the
+            ``(n_params,)`` (e.g. `torchjfa.data.regressor_noise` ``.input_noise``). Used by the
             default estimator and in the projection's metric ``X^T X + N diag(input_noise)``;
             when None, the metric takes the estimator's ``noise_x_`` if it has one (Bayesian
             JFA's estimate), else ``X^T X`` alone.
         projection_options: more keyword arguments of `torchjfa.physical.project` (``prior``,
             ``prior_weight``, ``ridge``, ``max_iter``, ``tol``, ``warm_start``).
-        chunk_size: samples per chunk (memory ``O(chunk_size * n_dof * n_params)``).
-        distributed: share the pass between the processes of an initialised
-            ``torch.distributed`` group; every process gets the same result.
-        group: the process group (default: the default group).
-        device: where the regressor, moments and fits are computed (default CPU).
-        progress: show a progress bar over the samples.
+        chunk_size, distributed, group, device, progress, compiled: how the pass over the data
+            runs (see `stream_moments`): samples per chunk (memory ``O(chunk_size * n_dof *
+            n_params)``), sharing it between the processes of an initialised
+            ``torch.distributed`` group (every process gets the same result), the device of the
+            regressor, moments and fits (default CPU), progress bars, the regressor's path.
         jackknife: K >= 2 refits the estimator on all but one of K contiguous blocks of the
             samples for ``theta_hat_std`` (K more fits; 0 skips it). An estimator that
             cross-validates uses its ``cv`` folds as the blocks.
         joint_weights: ``(n_dof,)`` weight of each joint's equations (weighted least squares;
             e.g. `residual_joint_weights`). ``input_noise`` must then be of the weighted rows
-            (`torchjfa.sim.regressor_noise` takes the same weights).
-        compiled: which path forms the regressor (see `stream_moments`).
+            (`torchjfa.data.regressor_noise` takes the same weights).
         description_prior: pull the projection towards the description (``model.nominal_theta``:
-            its inertials, zero friction) along the directions the data do not determine:
-            `torchjfa.physical.project` with ``prior=model.nominal_theta`` and
-            ``prior_scale=torchjfa.physical.parameter_scales(...)`` (each kind in its own
-            typical size). A number w >= 0 is the prior's weight: a Gaussian prior of standard
-            deviation ``p_k / sqrt(w)`` per parameter against the residual noise (see
-            `_prior_options`; w = 1: one physical scale, e.g. the description's RMS link mass),
-            so that directions the data determine barely move; ``"auto"`` chooses it from
-            `PRIOR_WEIGHTS` by cross-validation over contiguous blocks of the training data
-            (the jackknife's or cross-validation's, else `_PRIOR_BLOCKS`): each block is
-            predicted from the estimator fitted and projected on the others; the largest weight
-            whose held-out RMS error is within `PRIOR_TOLERANCE` (1%) of the lowest wins (the
-            description is taken as far as it does not hurt the fit). None (default): no
-            prior.
-            Needs ``project=True``.
+            its inertials, zero friction) along the directions the data do not determine
+            (`torchjfa._prior`): a weight w >= 0 gives each parameter a Gaussian prior of
+            standard deviation ``p_k / sqrt(w)`` (``p``: `torchjfa.physical.parameter_scales`,
+            each kind in its own typical size) against the residual noise, so that directions
+            the data determine barely move; ``"auto"`` chooses it from `PRIOR_WEIGHTS` by
+            cross-validation over contiguous blocks of the training data (the jackknife's or
+            cross-validation's, else `PRIOR_BLOCKS`): the largest weight whose held-out RMS
+            error is within `PRIOR_TOLERANCE` (1%) of the lowest wins. None (default): no
+            prior. Needs ``project=True``.
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -609,33 +786,13 @@ def identify(
     """
     if not isinstance(model, RigidBodyModel):
         raise TypeError(f"model must be a torchjfa.dynamics.RigidBodyModel, got {type(model)}")
-    d = model.n_params
-    noise = _noise_vector(input_noise, d)
+    noise = noise_vector(input_noise, model.n_params)
     if estimator is None:
         estimator = BayesianJFA(input_noise=noise, fit_intercept=False)
-    if not isinstance(estimator, LinearEstimator):
-        raise TypeError(
-            f"estimator must be a torchjfa.estimators estimator, got {type(estimator).__name__}"
-        )
-    if estimator.fit_intercept:
-        raise ValueError(
-            f"{type(estimator).__name__}(fit_intercept=True) would fit a torque offset that "
-            "inverse dynamics cannot use; pass fit_intercept=False (add friction 'offset' "
-            "terms to the model for a per-joint offset)"
-        )
+    check_estimator(estimator)
     options = dict(projection_options or {})
-    bad = sorted(set(options) & set(_RESERVED))
-    if bad:
-        raise ValueError(f"projection_options may not set {bad}; identify sets them")
-    auto_prior = _check_description_prior(description_prior, options, project)
-    jackknife = int(jackknife)
-    if jackknife == 1 or jackknife < 0:
-        raise ValueError(f"jackknife must be 0 (off) or at least 2 blocks, got {jackknife}")
-    # estimators that choose a hyper-parameter by cross-validation need fold moments
-    n_folds = int(estimator.cv) if estimator._needs_folds() else (jackknife or None)
-    keep_folds = n_folds is not None
-    if auto_prior and n_folds is None:
-        n_folds = _PRIOR_BLOCKS
+    auto_prior = check_description_prior(description_prior, options, project)
+    n_folds = blocks_needed(estimator, jackknife=jackknife, auto_prior=auto_prior)
     stats = stream_moments(
         model,
         logs,
@@ -650,145 +807,35 @@ def identify(
     )
     folds = stats if n_folds is not None else None
     moments = sum(stats[1:], stats[0].copy()) if folds is not None else stats
-    theta_hat_std = coefs = None
-    if jackknife:
-        coefs, theta_hat_std = _jackknife(estimator, folds, progress=progress)
-    prior_choice = None
-    if auto_prior:
-        prior_choice = _choose_prior_weight(
-            estimator, folds, model, noise, parametrization, options
-        )
-        best = min(prior_choice.values())
-        ok = [w for w, v in prior_choice.items() if v <= best * (1.0 + PRIOR_TOLERANCE)]
-        description_prior = max(ok)
-    estimator.fit_moments(folds if estimator._needs_folds() else moments)
-    theta_hat = estimator.coef_.detach().to(torch.float64)
-    if noise is None and hasattr(estimator, "noise_x_"):
-        noise = estimator.noise_x_.detach().to(torch.float64).cpu()
-    projection = None
-    theta = theta_hat
+    fit = estimate(
+        estimator, moments, folds, input_noise=noise, jackknife=bool(jackknife), progress=progress
+    )
+    projected = None
     if project:
-        if description_prior is not None:
-            options.update(_prior_options(model, moments, theta_hat, float(description_prior)))
-            if float(description_prior) > 0:  # the prior breaks the ties; a ridge pulls to 0
-                options.setdefault("ridge", 0.0)
-        projection = _project(
-            theta_hat,
-            layout=model,
-            moments=moments,
-            input_noise=None if noise is None else noise.to(moments.xtx.device),
+        projected = project_estimate(
+            model,
+            fit,
+            moments,
+            folds,
             parametrization=parametrization,
-            **options,
+            description_prior=description_prior,
+            options=options,
         )
-        theta = projection.theta.detach().to(torch.float64)
     _, world = rank_and_world_size(group) if distributed else (0, 1)
-    out = IdentificationResult(
+    return IdentificationResult(
         model=model,
-        theta=theta,
-        theta_hat=theta_hat,
+        theta=fit.theta_hat if projected is None else projected.theta,
+        theta_hat=fit.theta_hat,
         estimator=estimator,
         moments=moments,
-        folds=folds,
-        projection=projection,
-        input_noise=noise,
+        # the blocks of the prior's choice alone are not kept
+        folds=folds if (jackknife or estimator._needs_folds()) else None,
+        projection=None if projected is None else projected.projection,
+        input_noise=fit.metric_noise,
         world_size=world,
-        theta_hat_std=theta_hat_std,
+        theta_hat_std=fit.theta_hat_std,
         joint_weights=None if joint_weights is None else _joint_weights(joint_weights, model.n_dof),
-        theta_hat_jackknife=coefs,
-        prior_weight=None if description_prior is None else float(description_prior),
-        prior_choice=prior_choice,
+        theta_hat_jackknife=fit.theta_hat_jackknife,
+        prior_weight=None if projected is None else projected.prior_weight,
+        prior_choice=None if projected is None else projected.prior_choice,
     )
-    if not keep_folds:
-        out.folds = None
-    return out
-
-
-#: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
-#: w gives each parameter a prior standard deviation of its physical scale / sqrt(w). Above
-#: ~100 the prior also shrinks the weakly determined directions towards the description (a
-#: ridge towards it, not only a tie-break): the held-out block decides whether that helps
-PRIOR_WEIGHTS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)
-#: "auto" takes the largest weight whose held-out error is within this fraction of the best
-PRIOR_TOLERANCE = 0.01
-
-
-def _prior_options(model, moments: Moments, theta_hat: torch.Tensor, weight: float) -> dict:
-    """`project` options for the description prior of weight ``weight``.
-
-    The prior term ``weight * sigma^2 * sum_k ((theta_k - nominal_k) / p_k)^2`` beside eq. 8's
-    ``||y - X theta||^2 - const`` is a Gaussian prior of standard deviation ``p_k / sqrt(weight)``
-    on each parameter with ``sigma^2 = rss(theta_hat) / N`` the residual variance per row
-    (``p``: `parameter_scales` of the description). Every direction the data determine has an
-    eigenvalue of ``P X^T X P`` far above ``sigma^2`` (`torchjfa.physical.base_parameters`: above
-    100 sigma^2 for a tenth of the scale), so a weight of order 1 moves it by a fraction
-    ``weight sigma^2 / eigenvalue`` only; along the null space the prior decides. `project`'s
-    ``prior_weight`` is relative to ``s_p = sum_k p_k^2 M_kk / n_params``, hence the ratio."""
-    dev = moments.xtx.device
-    scale = parameter_scales(model.parameter_names, model.nominal_theta, moments).to(dev)
-    sigma2 = float(moments.rss(theta_hat.to(dev)).clamp_min(0.0) / moments.n)
-    s_p = float((scale.square() * torch.diagonal(moments.xtx)).sum()) / model.n_params
-    rel = weight * sigma2 / s_p if s_p > 0 else 0.0
-    return {
-        "prior": model.nominal_theta.to(dev),
-        "prior_scale": scale,
-        "prior_weight": rel,
-    }
-
-
-#: contiguous blocks of the training data for that choice when there are no others
-_PRIOR_BLOCKS = 5
-
-
-def _check_description_prior(value, options, project: bool) -> bool:
-    """Validate ``identify``'s ``description_prior``; True when it is ``"auto"``."""
-    if value is None:
-        return False
-    if "prior" in options or "prior_weight" in options or "prior_scale" in options:
-        raise ValueError(
-            "description_prior sets the projection's prior; do not also pass prior, "
-            "prior_weight or prior_scale in projection_options"
-        )
-    if not project:
-        raise ValueError("description_prior needs project=True (it acts in the projection)")
-    if isinstance(value, str):
-        if value != "auto":
-            raise ValueError(
-                f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}"
-            )
-        return True
-    if isinstance(value, bool) or not float(value) >= 0 or float(value) == float("inf"):
-        raise ValueError(f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}")
-    return False
-
-
-def _choose_prior_weight(estimator, folds, model, noise, parametrization, options):
-    """weight -> held-out RMS over the blocks, each predicted from a fit and projection on the
-    others (cross-validation over the training blocks)."""
-    import copy
-
-    rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
-    n = 0.0
-    for k, held in enumerate(folds):
-        train = folds[:k] + folds[k + 1 :]
-        est = copy.deepcopy(estimator)
-        if hasattr(est, "verbose"):
-            est.verbose = False
-        est.fit_moments(train if est._needs_folds() else sum(train[1:], train[0].copy()))
-        theta_hat = est.coef_.detach().to(torch.float64)
-        fold_noise = noise
-        if fold_noise is None and hasattr(est, "noise_x_"):
-            fold_noise = est.noise_x_.detach().to(torch.float64)
-        moments = sum(train[1:], train[0].copy())
-        for w in PRIOR_WEIGHTS:
-            theta = _project(
-                theta_hat,
-                layout=model,
-                moments=moments,
-                input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
-                parametrization=parametrization,
-                **{"ridge": 0.0 if w > 0 else 1e-8, **options},
-                **_prior_options(model, moments, theta_hat, w),
-            ).theta.to(torch.float64)
-            rss[w] += float(held.rss(theta).clamp_min(0.0))
-        n += float(held.n)
-    return {w: (v / n) ** 0.5 for w, v in rss.items()}

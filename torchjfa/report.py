@@ -44,6 +44,7 @@ __all__ = [
     "torque_errors",
     "estimator_text",
     "undetermined",
+    "verdict",
     "UNDETERMINED_FACTOR",
 ]
 
@@ -185,7 +186,7 @@ def undetermined(values, names, description) -> torch.Tensor:
     return ~torch.isfinite(v) | (v.abs() > bound)
 
 
-def _verdict(c: ConsistencyReport) -> str:
+def verdict(c: ConsistencyReport) -> str:
     """One verdict, the consistency table's own ("yes"/"no", bodies failing of all), with why."""
     n = len(c.joint_names)
     if c.ok:
@@ -471,8 +472,8 @@ class IdentificationReport:
             f"- convergence: {convergence}",
             *([f"- {warning}"] if warning else []),
             *(f"- warning: {w}" for w in self.settings.get("warnings", ())),
-            f"- physically consistent, identified: {_verdict(self.consistency)}; "
-            f"unconstrained estimate: {_verdict(self.consistency_unconstrained)}",
+            f"- physically consistent, identified: {verdict(self.consistency)}; "
+            f"unconstrained estimate: {verdict(self.consistency_unconstrained)}",
             f"- training RMS torque error: {s['train_rmse']:.4g} N m",
             "",
             "## Held-out torque prediction",

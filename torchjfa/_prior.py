@@ -1,0 +1,122 @@
+"""The description as a prior of the projection: `torchjfa.pipeline.identify`'s
+``description_prior``.
+
+The prior term ``w * sigma^2 * sum_k ((theta_k - nominal_k) / p_k)^2`` beside eq. 8's
+``||y - X theta||^2 - const`` is a Gaussian prior of standard deviation ``p_k / sqrt(w)`` on each
+parameter (``p``: `torchjfa.physical.parameter_scales` of the description, ``sigma^2`` the
+residual variance per row). Directions the data determine barely move; along the null space the
+prior decides. ``"auto"`` chooses ``w`` from `PRIOR_WEIGHTS` by cross-validation over contiguous
+blocks of the training data (`choose_prior_weight`, `pick_prior_weight`).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping, Sequence
+
+import torch
+
+from .physical import parameter_scales
+from .physical import project as _project
+from .stats import Moments
+
+__all__ = [
+    "PRIOR_WEIGHTS",
+    "PRIOR_TOLERANCE",
+    "PRIOR_BLOCKS",
+    "check_description_prior",
+    "choose_prior_weight",
+    "pick_prior_weight",
+    "prior_options",
+]
+
+#: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
+#: w gives each parameter a prior standard deviation of its physical scale / sqrt(w). Above
+#: ~100 the prior also shrinks the weakly determined directions towards the description (a
+#: ridge towards it, not only a tie-break): the held-out block decides whether that helps
+PRIOR_WEIGHTS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)
+#: "auto" takes the largest weight whose held-out error is within this fraction of the best
+PRIOR_TOLERANCE = 0.01
+#: contiguous blocks of the training data for that choice when there are no others
+PRIOR_BLOCKS = 5
+
+
+def prior_options(model, moments: Moments, theta_hat: torch.Tensor, weight: float) -> dict:
+    """`project` options for the description prior of weight ``weight``.
+
+    ``sigma^2 = rss(theta_hat) / N`` is the residual variance per row. Every direction the data
+    determine has an eigenvalue of ``P X^T X P`` far above ``sigma^2``
+    (`torchjfa.physical.base_parameters`: above 100 sigma^2 for a tenth of the scale), so a
+    weight of order 1 moves it by a fraction ``weight sigma^2 / eigenvalue`` only. `project`'s
+    ``prior_weight`` is relative to ``s_p = sum_k p_k^2 M_kk / n_params``, hence the ratio."""
+    dev = moments.xtx.device
+    scale = parameter_scales(model.parameter_names, model.nominal_theta, moments).to(dev)
+    sigma2 = float(moments.rss(theta_hat.to(dev)).clamp_min(0.0) / moments.n)
+    s_p = float((scale.square() * torch.diagonal(moments.xtx)).sum()) / model.n_params
+    rel = weight * sigma2 / s_p if s_p > 0 else 0.0
+    return {
+        "prior": model.nominal_theta.to(dev),
+        "prior_scale": scale,
+        "prior_weight": rel,
+    }
+
+
+def check_description_prior(value, options: Mapping, project: bool) -> bool:
+    """Validate ``identify``'s ``description_prior``; True when it is ``"auto"``."""
+    if value is None:
+        return False
+    if "prior" in options or "prior_weight" in options or "prior_scale" in options:
+        raise ValueError(
+            "description_prior sets the projection's prior; do not also pass prior, "
+            "prior_weight or prior_scale in projection_options"
+        )
+    if not project:
+        raise ValueError("description_prior needs project=True (it acts in the projection)")
+    if isinstance(value, str):
+        if value != "auto":
+            raise ValueError(
+                f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}"
+            )
+        return True
+    if isinstance(value, bool) or not float(value) >= 0 or float(value) == float("inf"):
+        raise ValueError(f"description_prior must be None, a weight >= 0 or 'auto', got {value!r}")
+    return False
+
+
+def choose_prior_weight(
+    estimator, folds: Sequence[Moments], model, noise, parametrization: str, options: Mapping
+) -> dict[float, float]:
+    """weight -> held-out RMS over the blocks, each predicted from a fit and projection on the
+    others (cross-validation over the training blocks)."""
+    rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
+    n = 0.0
+    for k, held in enumerate(folds):
+        train = list(folds[:k]) + list(folds[k + 1 :])
+        est = copy.deepcopy(estimator)
+        if hasattr(est, "verbose"):
+            est.verbose = False
+        moments = sum(train[1:], train[0].copy())
+        est.fit_moments(train if est._needs_folds() else moments)
+        theta_hat = est.coef_.detach().to(torch.float64)
+        fold_noise = noise
+        if fold_noise is None and hasattr(est, "noise_x_"):
+            fold_noise = est.noise_x_.detach().to(torch.float64)
+        for w in PRIOR_WEIGHTS:
+            theta = _project(
+                theta_hat,
+                layout=model,
+                moments=moments,
+                input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
+                parametrization=parametrization,
+                **{"ridge": 0.0 if w > 0 else 1e-8, **options},
+                **prior_options(model, moments, theta_hat, w),
+            ).theta.to(torch.float64)
+            rss[w] += float(held.rss(theta).clamp_min(0.0))
+        n += float(held.n)
+    return {w: (v / n) ** 0.5 for w, v in rss.items()}
+
+
+def pick_prior_weight(choice: Mapping[float, float]) -> float:
+    """The largest weight whose held-out RMS is within `PRIOR_TOLERANCE` of the lowest."""
+    best = min(choice.values())
+    return max(w for w, v in choice.items() if v <= best * (1.0 + PRIOR_TOLERANCE))

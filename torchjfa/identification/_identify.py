@@ -1,0 +1,181 @@
+"""`identify`: a robot and its raw log in, an `Identification` out, through the stages of
+`torchjfa.identification`."""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings as _warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from ..dynamics import RigidBodyModel
+from ..pipeline import IdentificationResult
+from ..report import IdentificationReport, TorqueFit, estimator_text, verdict
+from ._options import IdentificationWarning, Options
+from ._stages import (
+    NoiseChoice,
+    PreparedData,
+    RawLog,
+    choose_noise,
+    fit,
+    load_model,
+    prepare_data,
+    read,
+    validate,
+)
+
+__all__ = ["Identification", "identify"]
+
+
+@dataclass(eq=False)
+class Identification:
+    """What `identify` returns: every stage's output, the report, and the identified model.
+
+    Attributes:
+        model: the `RigidBodyModel`.
+        raw: the `RawLog` as read (joints in the model's order).
+        data: the `PreparedData` (training and held-out parts).
+        noise: the `NoiseChoice` (joint weights, input noise).
+        result: the `torchjfa.pipeline.IdentificationResult` (theta, the unconstrained
+            estimate, spreads, moments, projection).
+        report: the `torchjfa.report.IdentificationReport` on the held-out data.
+        options: the `Options` used.
+        seconds: wall time of the fit (moments, estimator, projection), s.
+    """
+
+    model: RigidBodyModel
+    raw: RawLog
+    data: PreparedData
+    noise: NoiseChoice
+    result: IdentificationResult
+    report: IdentificationReport
+    options: Options
+    seconds: float
+
+    @property
+    def theta(self) -> torch.Tensor:
+        """``(n_params,)`` the identified (physically consistent) parameters."""
+        return self.result.theta
+
+    @property
+    def validation_fit(self) -> TorqueFit:
+        """How the identified model predicts the held-out torques."""
+        return self.report.fits["identified"]
+
+    @property
+    def warnings(self) -> list[str]:
+        """Everything the stages found that the user should know, in the flow's order."""
+        return list(self.report.settings.get("warnings", []))
+
+    @property
+    def identified_well(self) -> bool:
+        """Whether the model predicts the held-out torques better than their mean (nMSE < 1)."""
+        return bool(self.validation_fit.mean_nmse < 1.0)  # NaN: False
+
+    def problem(self) -> str | None:
+        """Why the result must not be used (the held-out fit is worse than the mean), or None."""
+        if self.identified_well:
+            return None
+        return (
+            f"the identified model predicts the held-out torques worse than their mean (nMSE "
+            f"{self.validation_fit.mean_nmse:.3g}): this log does not identify "
+            f"{self.report.settings.get('robot', 'the robot')} ({self.data.train.duration:.3g} s "
+            "of training data); record a longer or richer excitation"
+        )
+
+    def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
+        """The identified model as an `InverseDynamics` ``nn.Module`` (see
+        `IdentificationResult.inverse_dynamics`)."""
+        return self.result.inverse_dynamics(projected=projected, trainable=trainable)
+
+    def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
+        """Write the report's folder (`IdentificationReport.write`); returns the paths."""
+        return self.report.write(out_dir, plots=plots)
+
+    def headline(self) -> list[str]:
+        """Two lines: what was identified, and how it predicts the held-out torques."""
+        fit, model = self.validation_fit, self.model
+        per_joint = ", ".join(
+            f"{j} {float(v):.3g}" for j, v in zip(model.joint_names, fit.nmse, strict=True)
+        )
+        return [
+            f"identified {model.n_params} parameters of {self.report.settings.get('robot')} from "
+            f"{self.data.train.n_samples} samples in {self.seconds:.1f} s; physically "
+            f"consistent: {verdict(self.report.consistency)}",
+            f"held-out torque nMSE {fit.mean_nmse:.4g} (per joint: {per_joint})",
+        ]
+
+
+def identify(
+    robot,
+    log,
+    options: Options | None = None,
+    *,
+    validation_log=None,
+    settings: Mapping[str, object] | None = None,
+) -> Identification:
+    """Identify a robot from its raw log, with the whole real-log flow.
+
+    `load_model` -> `read` (check the log) -> `prepare_data` (cut-off, filter, derivatives,
+    held-out part) -> `choose_noise` (joint weights, input noise from repeated periods) -> `fit`
+    (moments, estimator, projection) -> `validate` (the report on the held-out data). Each stage
+    is public in `torchjfa.identification`, to run one by one (notebooks/real_robot.ipynb).
+    The ``torchjfa identify`` command is this call.
+
+    Args:
+        robot: a URDF / MJCF path, a shipped or simulated robot's name, or a `RigidBodyModel`.
+        log: the raw log: a CSV / NPZ / Parquet path (columns ``t, q_<joint>, [qd_<joint>],
+            tau_<joint>``; `torchjfa.data.read_log`) or a `torchjfa.data.JointLog`.
+        options: `Options` (default: the defaults, chosen for real robots).
+        validation_log: a second raw log to hold out instead of the end of ``log``.
+        settings: more entries for the report's record (e.g. the command line).
+
+    Returns:
+        An `Identification`; ``.write(folder)`` writes the report. Each of its
+        ``warnings`` is also issued as an `IdentificationWarning`, and one more when the
+        held-out fit is worse than the torques' mean (`Identification.problem`).
+
+    Raises:
+        IdentificationError: on options or data that cannot give an identification.
+        torchjfa.data.LogError: on a log that cannot be read or identifies nothing.
+    """
+    options = Options() if options is None else options
+    model = load_model(robot, options.friction)
+    raw = read(log, model, options)
+    held = None if validation_log is None else read(validation_log, model, options)
+    data = prepare_data(model, raw, options, held)
+    noise = choose_noise(model, data, options)
+    started = time.perf_counter()
+    result = fit(model, data, noise, options)
+    seconds = time.perf_counter() - started
+    record = {
+        "robot": _name(robot),
+        "log": _name(log),
+        "validation": data.split,
+        "preparation": data.describe(),
+        "cutoff": f"{data.cutoff_hz:g} Hz, {data.cutoff_how}",
+        "prepare": dict(data.preparation),
+        "data": dict(data.info),
+        "identify_seconds": seconds,
+        "input_noise": noise.mode,
+        "estimator": estimator_text(result.estimator),
+        "weighting": options.weighting,
+        **dict(settings or {}),
+        "warnings": data.warnings + noise.warnings,
+    }
+    report = validate(result, data, noise, record)
+    out = Identification(model, raw, data, noise, result, report, options, seconds)
+    for line in out.warnings + ([out.problem()] if out.problem() else []):
+        _warnings.warn(line, IdentificationWarning, stacklevel=2)
+    return out
+
+
+def _name(thing) -> str:
+    """How the report names a robot or a log given as a path, a name or an object."""
+    if isinstance(thing, str | os.PathLike):
+        return str(thing)
+    return getattr(thing, "source", None) or getattr(thing, "name", None) or type(thing).__name__

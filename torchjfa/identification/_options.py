@@ -1,0 +1,164 @@
+"""How an identification runs: `Options` (every choice of the flow) and `Compute` (where and how
+the pass over the data runs)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+
+import torch
+
+__all__ = [
+    "Compute",
+    "Options",
+    "IdentificationError",
+    "IdentificationWarning",
+    "ESTIMATOR_NAMES",
+    "JOINT_TERMS",
+]
+
+#: the estimators `Options.estimator` names (`torchjfa.estimators.make`)
+ESTIMATOR_NAMES = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
+#: the joint terms `Options.friction` takes: friction, and the motor's reflected inertia
+JOINT_TERMS = ("viscous", "coulomb", "offset", "armature")
+
+
+class IdentificationError(ValueError):
+    """The data or the options cannot give an identification: what is wrong, and what to do.
+
+    (The command line prints it as one line and exits with status 2.)"""
+
+
+class IdentificationWarning(UserWarning):
+    """The identification ran but something in it needs the user's attention."""
+
+
+@dataclass(frozen=True)
+class Compute:
+    """Where and how the pass over the data runs (`torchjfa.pipeline.stream_moments`).
+
+    Attributes:
+        chunk_size: samples per regressor chunk; memory ``O(chunk_size * n_dof * n_params)``.
+        device: where the regressor, moments and fits are computed (None: CPU).
+        distributed: share the pass between the processes of an initialised
+            ``torch.distributed`` group; every process gets the same result.
+        group: that process group (None: the default group).
+        progress: show progress bars.
+        compiled: the regressor's path: None the C++ kernel where a compiler is found, True
+            insists on it, False the torch path (`RigidBodyModel.regressor`).
+    """
+
+    chunk_size: int = 4096
+    device: torch.device | str | None = None
+    distributed: bool = False
+    group: object = None
+    progress: bool = False
+    compiled: bool | None = None
+
+    def stream(self) -> dict[str, object]:
+        """The keywords of `stream_moments` / `torchjfa.pipeline.identify` this sets."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class Options:
+    """Every choice of `torchjfa.identify`, with defaults that work on a real robot's log
+    (docs/real-robot.md measures them on a Franka Panda). The command line's options are these.
+
+    Robot:
+        friction: the joint terms of the model when the robot is given by name or file,
+            from `JOINT_TERMS` (viscous, Coulomb and offset friction; ``"armature"``).
+
+    Reading (`torchjfa.data.read_log`):
+        columns: the library's column names -> the log's (``{"t": "time", ...}``), or None.
+        time_scale: seconds per unit of the log's time column (1e-9 for ns).
+        drop_nan: drop rows holding NaN instead of stopping.
+        max_seconds: use only the first this many seconds of the log (a quick check), or None.
+
+    Preparation (`torchjfa.data.prepare`):
+        cutoff: the zero-phase low-pass cut-off, Hz, or ``"auto"``
+            (`torchjfa.data.choose_cutoff` on the training part of the log).
+        filter: ``"butterworth"`` (order 4) or ``"savgol"``.
+        velocity: ``"auto"``, ``"measured"`` or ``"differentiate"``.
+        period: the excitation period, s, ``"auto"`` (detect) or None (none).
+        skip_start: seconds of start-up transient to drop, or ``"auto"`` (needs a period).
+        decimate: keep every k-th sample after filtering.
+        validation: the fraction held out at the end of the log (unless a validation log is
+            given), with a gap of the filter's reach between the parts.
+
+    Estimation:
+        estimator: a name of `ESTIMATOR_NAMES` (`torchjfa.estimators.make`) or an estimator
+            with ``fit_intercept=False``, used as it is.
+        estimator_options: keywords of the named estimator (e.g. ``{"max_iter": 20000}``).
+        weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
+            variance, `torchjfa.pipeline.residual_joint_weights`) or ``"none"``.
+        input_noise: the regressor's input noise: ``"auto"`` (from the repeated excitation
+            periods where the training data hold two or more, else none given), ``"periods"``
+            (insist on it), ``"learn"`` (none given: Bayesian JFA learns it), or ``(n_params,)``
+            variances of the (weighted) regressor columns.
+        jackknife: blocks of the delete-one-block jackknife spread (0: none).
+
+    Projection (`torchjfa.physical.project`):
+        project: project onto physically consistent parameters.
+        parametrization: ``"log-cholesky"`` (fully consistent) or ``"virtual"`` (eq. 5).
+        description_prior: None, a weight >= 0 or ``"auto"`` (see `torchjfa.pipeline.identify`).
+        projection_options: more keywords of `torchjfa.physical.project`.
+
+    compute: `Compute` (chunking, device, processes, progress, the regressor's path).
+    """
+
+    friction: tuple[str, ...] = ("viscous", "coulomb", "offset")
+    columns: Mapping[str, str] | None = None
+    time_scale: float = 1.0
+    drop_nan: bool = False
+    max_seconds: float | None = None
+    cutoff: float | str = "auto"
+    filter: str = "butterworth"
+    velocity: str = "auto"
+    period: float | str | None = "auto"
+    skip_start: float | str = 0.0
+    decimate: int = 1
+    validation: float = 0.2
+    estimator: object = "ols"
+    estimator_options: Mapping[str, object] = field(default_factory=dict)
+    weighting: str = "residual"
+    input_noise: object = "auto"
+    jackknife: int = 5
+    project: bool = True
+    parametrization: str = "log-cholesky"
+    description_prior: float | str | None = None
+    projection_options: Mapping[str, object] = field(default_factory=dict)
+    compute: Compute = field(default_factory=Compute)
+
+    def __post_init__(self) -> None:
+        bad = [k for k in self.friction if k not in JOINT_TERMS]
+        if bad:
+            raise IdentificationError(f"unknown joint term(s) {bad}; choose from {JOINT_TERMS}")
+        object.__setattr__(self, "friction", tuple(self.friction))
+        _choice("filter", self.filter, ("butterworth", "savgol"))
+        _choice("velocity", self.velocity, ("auto", "measured", "differentiate"))
+        _choice("weighting", self.weighting, ("residual", "none"))
+        _choice("parametrization", self.parametrization, ("log-cholesky", "virtual"))
+        if isinstance(self.estimator, str):
+            _choice("estimator", self.estimator, ESTIMATOR_NAMES)
+        if isinstance(self.input_noise, str):
+            _choice("input_noise", self.input_noise, ("auto", "learn", "periods"))
+        if self.cutoff != "auto" and not 0 < float(self.cutoff) < float("inf"):
+            raise IdentificationError(f"cutoff must be 'auto' or a positive Hz, got {self.cutoff}")
+        if not 0.0 < float(self.validation) < 1.0:
+            raise IdentificationError(
+                f"validation must be a fraction in (0, 1), got {self.validation}"
+            )
+        if self.description_prior is not None and not self.project:
+            raise IdentificationError(
+                "the description prior acts in the projection: it needs project=True"
+            )
+
+    def replace(self, **changes) -> Options:
+        """A copy with ``changes`` (``Options`` is frozen)."""
+        return replace(self, **changes)
+
+
+def _choice(name: str, value, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise IdentificationError(f"{name} must be one of {allowed}, got {value!r}")
