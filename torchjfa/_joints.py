@@ -47,15 +47,13 @@ def permutation(
             raise error(f"{prefix}{owner} names the joint(s) {repeated} more than once")
     extra = [j for j in have if j not in want]
     missing = [j for j in want if j not in have]
-    if extra:
+    if extra or missing:
+        if extra:
+            what = f"joint(s) {extra} are in {have_name} but {want_name} has no joint of that name"
+        else:
+            what = f"{want_name}'s joint(s) {missing} have no columns in {have_name}"
         raise error(
-            f"{prefix}joint(s) {extra} are in {have_name} but {want_name} has no joint of that "
-            f"name; {want_name}'s joints are {list(want)}, {have_name}'s {list(have)} (rename "
-            "them to match)"
-        )
-    if missing:
-        raise error(
-            f"{prefix}{want_name}'s joint(s) {missing} have no columns in {have_name}; "
-            f"{want_name}'s joints are {list(want)}, {have_name}'s {list(have)}"
+            f"{prefix}{what}; {have_name}'s joints {list(have)} are not {want_name}'s "
+            f"{list(want)} (rename them to match)"
         )
     return [have.index(j) for j in want]

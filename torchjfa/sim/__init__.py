@@ -16,6 +16,7 @@ from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise
 from ._log import SimulatedLog as SimulatedLog
+from ._log import load_log as load_log
 from ._robots import EFFECTS as EFFECTS
 from ._robots import ROBOTS as ROBOTS
 from ._robots import UNMODELED as UNMODELED

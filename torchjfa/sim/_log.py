@@ -48,10 +48,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..data import JointLog, NpzArchive
+from ..data import JointLog, NpzArchive, read_log
 from ._trajectory import SinusoidTrajectory
 
-__all__ = ["SensorNoise", "SimulatedLog"]
+__all__ = ["SensorNoise", "SimulatedLog", "load_log"]
 
 _FORMAT = "torchjfa.SimulatedLog"
 _VERSION = 1
@@ -250,7 +250,7 @@ class SimulatedLog(JointLog):
             ValueError: if the file is not a `SimulatedLog` file of a known version.
         """
         archive = NpzArchive(path)
-        if "format" not in archive or str(archive.arrays(["format"])["format"]) != _FORMAT:
+        if not _is_simulated(archive):
             raise ValueError(f"{os.fspath(path)!r} is not a torchjfa SimulatedLog .npz file")
         data = archive.arrays()
         if int(data["version"]) != _VERSION:
@@ -291,3 +291,24 @@ class SimulatedLog(JointLog):
             diff_cutoff_hz=None if np.isnan(cutoff) else cutoff,
             source=archive.path,
         )
+
+
+def _is_simulated(archive: NpzArchive) -> bool:
+    return "format" in archive and str(archive.arrays(["format"])["format"]) == _FORMAT
+
+
+def load_log(path: str | os.PathLike, **read_options) -> JointLog:
+    """Read a log file: a `SimulatedLog` file as a `SimulatedLog`, any other as a `JointLog`.
+
+    Args:
+        path: a `SimulatedLog.save` file, or a CSV, NPZ or Parquet log.
+        read_options: keywords of `torchjfa.data.read_log` (``columns``, ``time_scale``, ...)
+            for a file that is not a `SimulatedLog`.
+
+    Raises:
+        FileNotFoundError, ValueError: as `SimulatedLog.load` and `torchjfa.data.read_log`.
+    """
+    path = os.fspath(path)
+    if path.lower().endswith(".npz") and _is_simulated(NpzArchive(path)):
+        return SimulatedLog.load(path)
+    return read_log(path, **read_options)
