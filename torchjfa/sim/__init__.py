@@ -5,7 +5,8 @@ Use this package to rebuild the seed paper's robot experiments without the robot
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
 of the robot tracking a periodic excitation, and `computed_torque` evaluates identified
 parameters in closed loop. `regressor_noise` and `PeriodNoise` (the noise from the repeated
-periods) live in `torchjfa.data` and are re-exported here.
+periods) live in `torchjfa.data` and are re-exported here; `load_log` reads a `SimulatedLog`
+file as one and any other log file as a `torchjfa.data.JointLog`.
 """
 
 from ..data import PeriodNoise as PeriodNoise
