@@ -25,12 +25,9 @@ this flow does not cover.
 
 from __future__ import annotations
 
-import os
-import zipfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
 from ._prior import (
@@ -44,6 +41,7 @@ from ._prior import (
 )
 from ._progress import progress_bar
 from ._validation import as_tensor, check_finite
+from .data import log_length, log_sources
 from .distributed import all_reduce_moments, rank_and_world_size, shard_range
 from .dynamics import InverseDynamics, RigidBodyModel
 from .estimators import BayesianJFA, LinearEstimator
@@ -69,189 +67,12 @@ __all__ = [
     "stream_moments",
 ]
 
-_KEYS = ("q", "qd", "qdd", "tau")
 _RESERVED = ("layout", "moments", "metric", "input_noise", "parametrization", "theta_hat")
 
 
 # ---------------------------------------------------------------------------------- sources
-class _ArraySource:
-    """A log held in memory (or memory-mapped): arrays sliced on demand."""
-
-    def __init__(self, obj, name: str) -> None:
-        get = obj.__getitem__ if isinstance(obj, Mapping) else lambda k: getattr(obj, k)
-        self.name = name
-        self.arrays = {}
-        for k in _KEYS:
-            try:
-                v = get(k)
-            except (KeyError, AttributeError):
-                raise ValueError(
-                    f"{name} has no {k!r}; a log needs q, qd, qdd and tau (n_samples, n_dof) "
-                    "(differentiate q or qd first, e.g. with torchjfa.data.differentiate)"
-                ) from None
-            if not isinstance(v, torch.Tensor | np.ndarray):
-                v = np.asarray(v, dtype=np.float64)
-            self.arrays[k] = v
-        shape = tuple(self.arrays["q"].shape)
-        for k, v in self.arrays.items():
-            if tuple(v.shape) != shape or len(shape) != 2:
-                raise ValueError(
-                    f"{name}: q, qd, qdd and tau must all have shape (n_samples, n_dof); "
-                    f"got {k} {tuple(v.shape)} and q {shape}"
-                )
-        self.shape = shape
-        names = None
-        try:
-            names = get("joint_names")
-        except (KeyError, AttributeError):
-            pass
-        self.joint_names = None if names is None else tuple(str(s) for s in np.asarray(names))
-
-    def read(self, segments) -> Iterator[tuple]:
-        for a, b, fold in segments:
-            out = []
-            for k in _KEYS:
-                v = self.arrays[k][a:b]
-                if isinstance(v, torch.Tensor):
-                    out.append(v.to(torch.float64))
-                else:  # copy: memory maps and read-only arrays become ordinary tensors
-                    out.append(torch.from_numpy(np.array(v, dtype=np.float64, copy=True)))
-            yield (a, b, fold), out
-
-
-class _NpzSource:
-    """An ``.npz`` log read lazily, ``[a, b)`` row ranges straight from the zip members."""
-
-    def __init__(self, path) -> None:
-        self.name = os.fspath(path)
-        if not os.path.isfile(self.name):
-            raise FileNotFoundError(f"no such log file: {self.name!r}")
-        if not zipfile.is_zipfile(self.name):
-            raise ValueError(f"{self.name!r} is not an .npz file (numpy.savez/savez_compressed)")
-        self.header = {}
-        with zipfile.ZipFile(self.name) as zf:
-            members = set(zf.namelist())
-            missing = [k for k in _KEYS if f"{k}.npy" not in members]
-            if missing:
-                raise ValueError(
-                    f"{self.name!r} has no array(s) {missing}; a log needs q, qd, qdd and tau "
-                    "(n_samples, n_dof) (differentiate first, e.g. torchjfa.data.differentiate)"
-                )
-            for k in _KEYS:
-                with zf.open(f"{k}.npy") as fh:
-                    self.header[k] = _read_header(fh)
-            self.joint_names = None
-            if "joint_names.npy" in members:
-                with zf.open("joint_names.npy") as fh:
-                    names = np.lib.format.read_array(fh, allow_pickle=False)
-                self.joint_names = tuple(str(s) for s in names.reshape(-1))
-        shapes = {k: h[0] for k, h in self.header.items()}
-        shape = shapes["q"]
-        if len(shape) != 2 or any(s != shape for s in shapes.values()):
-            raise ValueError(
-                f"{self.name!r}: q, qd, qdd and tau must all have shape (n_samples, n_dof); "
-                f"got {shapes}"
-            )
-        for k, (_, dtype, _, _) in self.header.items():
-            if dtype.kind not in "fiu":
-                raise ValueError(f"{self.name!r}: {k} has dtype {dtype}, expected floats")
-        self.shape = shape
-
-    def read(self, segments) -> Iterator[tuple]:
-        with zipfile.ZipFile(self.name) as zf:
-            handles, whole = {}, {}
-            try:
-                for k in _KEYS:
-                    _, dtype, fortran, offset = self.header[k]
-                    if fortran or offset is None:  # rows are not contiguous: load the member
-                        with zf.open(f"{k}.npy") as fh:
-                            whole[k] = np.lib.format.read_array(fh, allow_pickle=False)
-                    else:
-                        handles[k] = zf.open(f"{k}.npy")
-                for a, b, fold in segments:
-                    out = []
-                    for k in _KEYS:
-                        if k in whole:
-                            rows = np.array(whole[k][a:b], dtype=np.float64)
-                        else:
-                            rows = self._rows(handles[k], k, a, b)
-                        out.append(torch.from_numpy(rows))
-                    yield (a, b, fold), out
-            finally:
-                for fh in handles.values():
-                    fh.close()
-
-    def _rows(self, fh, key: str, a: int, b: int) -> np.ndarray:
-        shape, dtype, _, offset = self.header[key]
-        row = shape[1] * dtype.itemsize
-        start = offset + a * row
-        if fh.tell() != start:
-            fh.seek(start)  # forward seeks in a compressed member decompress and skip
-        data = fh.read((b - a) * row)
-        if len(data) != (b - a) * row:
-            raise ValueError(f"{self.name!r}: {key} ends before row {b}; the file is truncated")
-        return np.frombuffer(data, dtype=dtype).reshape(b - a, shape[1]).astype(np.float64)
-
-
-def _read_header(fh) -> tuple:
-    """``(shape, dtype, fortran_order, data_offset)`` of an ``.npy`` stream (offset None if
-    the header version is not one this reader knows; the member is then loaded whole)."""
-    version = np.lib.format.read_magic(fh)
-    if version == (1, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
-    elif version == (2, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
-    else:
-        return (), np.dtype(np.float64), True, None
-    return tuple(shape), np.dtype(dtype), bool(fortran), fh.tell()
-
-
-def _open(log, index: int):
-    if isinstance(log, str | os.PathLike):
-        return _NpzSource(log)
-    if isinstance(log, Mapping) or all(hasattr(log, k) for k in _KEYS):
-        return _ArraySource(log, f"log {index} ({type(log).__name__})")
-    raise TypeError(
-        f"log {index} is a {type(log).__name__}; expected an .npz path, a SimulatedLog, a mapping "
-        "or an object with q, qd, qdd and tau arrays (n_samples, n_dof)"
-    )
-
-
 def _as_sources(model: RigidBodyModel, logs) -> list:
-    items = [logs] if isinstance(logs, str | os.PathLike | Mapping) or hasattr(logs, "q") else logs
-    if not isinstance(items, Sequence) or isinstance(items, str):
-        raise TypeError(f"logs must be a log or a list of logs, got {type(logs).__name__}")
-    if len(items) == 0:
-        raise ValueError("no logs given")
-    sources = [_open(log, i) for i, log in enumerate(items)]
-    for src in sources:
-        src.perm = _permutation(model, src)
-    return sources
-
-
-def _permutation(model: RigidBodyModel, src) -> list[int] | None:
-    """Column order that puts the log's joints in the model's order (None: already so)."""
-    n_dof = src.shape[1]
-    if src.joint_names is None:
-        if n_dof != model.n_dof:
-            raise ValueError(
-                f"{src.name} has {n_dof} joint columns, the model has {model.n_dof} joints "
-                f"{model.joint_names}"
-            )
-        return None
-    names = src.joint_names
-    if len(names) != n_dof or sorted(names) != sorted(model.joint_names):
-        raise ValueError(
-            f"{src.name} logs the joints {names}, the model has {model.joint_names}; they must "
-            "be the same joints (in any order)"
-        )
-    perm = [names.index(j) for j in model.joint_names]
-    return None if perm == list(range(n_dof)) else perm
-
-
-def log_length(log) -> int:
-    """Number of samples of a log (an ``.npz`` path is not loaded: only its header is read)."""
-    return _open(log, 0).shape[0]
+    return log_sources(logs, model.joint_names)
 
 
 # ---------------------------------------------------------------------------------- moments

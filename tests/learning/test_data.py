@@ -77,3 +77,53 @@ def test_n_train_and_signals(head_files):
         SimulatedLogDataModule(log_path, signals="noisy")
     with pytest.raises(ValueError, match="batch_size"):
         SimulatedLogDataModule(log_path, batch_size=0)
+
+
+def test_a_plain_joint_log_trains_as_its_simulated_log(head_files, tmp_path):
+    """The data path takes any JointLog with accelerations: a write_log file of the measured
+    signals alone gives the same samples, regressors and trained weights as the SimulatedLog."""
+    from torchjfa.data import JointLog, write_log
+    from torchjfa.learning import ResidualDynamicsModule
+
+    from ._helpers import quiet_lightning, trainer
+
+    log_path, id_path, log, _, _ = head_files
+    plain = JointLog(
+        t=log.t, q=log.q, qd=log.qd, qdd=log.qdd, tau=log.tau, joint_names=log.joint_names
+    ).reorder(log.joint_names[::-1])  # columns in another order than the model's
+    write_log(plain, tmp_path / "plain.npz")
+    trained = []
+    for path in (log_path, tmp_path / "plain.npz"):
+        dm = SimulatedLogDataModule(
+            path, identified=id_path, chunk_size=64, batch_size=64, shuffle=False
+        )
+        dm.setup("fit")
+        torch.manual_seed(0)
+        module = ResidualDynamicsModule(hidden=(8,), lr=1e-2, identified=str(id_path))
+        with quiet_lightning():
+            trainer(tmp_path / path.stem, max_epochs=2, num_sanity_val_steps=0).fit(module, dm)
+        trained.append((dm.train_tensors(), torch.cat([p.flatten() for p in module.parameters()])))
+    (a, wa), (b, wb) = trained
+    assert all(torch.equal(a[k], b[k]) for k in ("q", "qd", "qdd", "tau", "Y"))
+    assert torch.equal(wa, wb)
+    torch.manual_seed(0)
+    init = ResidualDynamicsModule(hidden=(8,), lr=1e-2, identified=str(id_path))
+    assert not torch.equal(wa, torch.cat([p.flatten() for p in init.parameters()]))  # it trained
+
+
+def test_a_joint_log_without_accelerations_must_be_prepared_first(head_files, tmp_path):
+    from torchjfa.data import JointLog, write_log
+
+    _, _, log, _, _ = head_files
+    raw = JointLog(t=log.t, q=log.q, tau=log.tau, joint_names=log.joint_names)
+    with pytest.raises(ValueError, match=r"no velocities; prepare it first"):
+        log_tensors(raw)
+    write_log(JointLog(t=log.t, q=log.q, qd=log.qd, tau=log.tau, joint_names=log.joint_names),
+              tmp_path / "no_qdd.csv")  # fmt: skip
+    with pytest.raises(ValueError, match=r"no_qdd.csv has no accelerations; prepare it first"):
+        SimulatedLogDataModule(tmp_path / "no_qdd.csv", chunk_size=32).setup("fit")
+    with_qdd = JointLog(
+        t=log.t, q=log.q, qd=log.qd, qdd=log.qdd, tau=log.tau, joint_names=log.joint_names
+    )
+    with pytest.raises(ValueError, match="ground truth of a simulated log"):
+        log_tensors(with_qdd, "true")

@@ -1,10 +1,14 @@
 """torchjfa.data: joint logs from files, and their preparation for identification.
 
-`read_log` reads CSV, NPZ and Parquet logs into a `JointLog`; `prepare` resamples, filters,
+`JointLog` is the one log type (a `torchjfa.sim.SimulatedLog` is a `JointLog` plus its ground
+truth). `read_log` reads CSV, NPZ and Parquet logs into one; `prepare` resamples, filters,
 differentiates, trims and decimates it; `choose_cutoff` picks its filter's cut-off from the
 data; `differentiate` is the filter and derivatives alone;
 `check_log` finds logs that cannot identify anything (gaps, no motion, degrees, scrambled
-columns); `coverage` says where another log's motion goes beyond the identification log's.
+columns); `coverage` says where another log's motion goes beyond the identification log's;
+`regressor_noise` estimates the regression's input and output noise from repeated excitation
+periods. `NpzArchive` and `NpzLog` are the one ``.npz`` reader (member by member, row range by
+row range); `log_sources` streams logs to `torchjfa.pipeline.stream_moments` through it.
 """
 
 from ._checks import LogProblem as LogProblem
@@ -19,14 +23,20 @@ from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ
 from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate
 from ._differentiate import savgol_window as savgol_window
-from ._log import KINDS as KINDS
-from ._log import TIME_COLUMN as TIME_COLUMN
 from ._log import JointLog as JointLog
-from ._log import LogError as LogError
 from ._log import read_log as read_log
 from ._log import write_log as write_log
+from ._npz import NpzArchive as NpzArchive
+from ._npz import NpzLog as NpzLog
+from ._periods import PeriodNoise as PeriodNoise
+from ._periods import regressor_noise as regressor_noise
 from ._prepare import detect_period as detect_period
 from ._prepare import is_uniform as is_uniform
 from ._prepare import prepare as prepare
 from ._prepare import resample as resample
 from ._prepare import transient_periods as transient_periods
+from ._schema import KINDS as KINDS
+from ._schema import TIME_COLUMN as TIME_COLUMN
+from ._schema import LogError as LogError
+from ._sources import log_length as log_length
+from ._sources import log_sources as log_sources

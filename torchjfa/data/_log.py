@@ -32,15 +32,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._joints import permutation
+from ._npz import npz_columns
+from ._schema import KINDS, TIME_COLUMN, LogError, joints_from_columns
+
 __all__ = ["JointLog", "LogError", "read_log", "write_log", "KINDS", "TIME_COLUMN"]
 
-TIME_COLUMN = "t"
-KINDS = ("q", "qd", "qdd", "tau")  # column prefixes, each followed by "_<joint>"
 _FORMATS = ("csv", "npz", "parquet")
-
-
-class LogError(ValueError):
-    """A log that cannot be used as it is; the message says what is wrong and where."""
 
 
 def _rows(idx: np.ndarray, limit: int = 8) -> str:
@@ -123,12 +121,36 @@ class JointLog:
             raise LogError(f"{self.source}: a log needs at least 2 samples for a rate")
         return 1.0 / float(torch.median(torch.diff(self.t)))
 
+    @property
+    def n_periods(self) -> int:
+        """Whole excitation periods in the log.
+
+        Raises:
+            LogError: if the log has no ``period_samples``.
+        """
+        if self.period_samples is None:
+            raise LogError(
+                f"{self.source}: the log has no period_samples (a periodic excitation resampled "
+                "to whole-sample periods, see torchjfa.data.prepare)"
+            )
+        return self.n_samples // self.period_samples
+
     def signals(self) -> dict[str, torch.Tensor]:
         """The ``(n, n_dof)`` signals the log has, by kind (``q``, ``qd``, ``qdd``, ``tau``)."""
         return {k: getattr(self, k) for k in KINDS if getattr(self, k) is not None}
 
+    def _sample_arrays(self) -> dict[str, torch.Tensor]:
+        """Every ``(n, n_dof)`` array of the log by attribute name: what `select` slices and
+        `reorder` permutes (a subclass with more per-sample arrays adds them here)."""
+        return self.signals()
+
+    def _joint_fields(self, perm: list[int]) -> dict:
+        """The fields that follow the joints, with their joints in ``perm`` order."""
+        return {k: v[:, perm] for k, v in self._sample_arrays().items()}
+
     def select(self, index) -> JointLog:
-        """The samples ``index`` (a slice, a boolean mask or integer indices) as a new log.
+        """The samples ``index`` (a slice, a boolean mask or integer indices) as a new log
+        (of the same type: a subclass's per-sample arrays are selected too).
 
         ``period_samples`` is kept only for a slice with step 1 (the phase moves, periods stay
         whole-sample): the noise estimate stacks whole periods from the first sample.
@@ -137,31 +159,20 @@ class JointLog:
         return replace(
             self,
             t=self.t[index],
-            **{k: v[index] for k, v in self.signals().items()},
+            **{k: v[index] for k, v in self._sample_arrays().items()},
             period_samples=self.period_samples if keep_period else None,
         )
 
     def reorder(self, joint_names: Sequence[str]) -> JointLog:
-        """The log with its columns in ``joint_names`` order (e.g. a model's).
+        """The log with its columns in ``joint_names`` order (e.g. a model's); a subclass's
+        per-joint fields follow.
 
         Raises:
             LogError: if the log has a joint that is not in ``joint_names`` or lacks one.
         """
         want = tuple(joint_names)
-        extra = [j for j in self.joint_names if j not in want]
-        missing = [j for j in want if j not in self.joint_names]
-        if extra:
-            raise LogError(
-                f"{self.source}: joint(s) {extra} are in the log but the robot has no joint of "
-                f"that name; the robot's joints are {list(want)} (rename the columns with a "
-                "column mapping)"
-            )
-        if missing:
-            raise LogError(
-                f"{self.source}: the robot's joint(s) {missing} have no columns in the log"
-            )
-        perm = [self.joint_names.index(j) for j in want]
-        return replace(self, joint_names=want, **{k: v[:, perm] for k, v in self.signals().items()})
+        perm = permutation(self.joint_names, want, where=self.source, error=LogError)
+        return replace(self, joint_names=want, **self._joint_fields(perm))
 
     def split(self, fraction: float, *, gap: int = 0) -> tuple[JointLog, JointLog]:
         """Split into a training head and a held-out tail of about ``fraction`` of the samples.
@@ -220,22 +231,7 @@ def _table_columns(table, path: Path) -> dict[str, np.ndarray]:
 
 def _read_columns(path: Path, fmt: str) -> dict[str, np.ndarray | None]:
     if fmt == "npz":
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-        if "joint_names" in data and "q" in data:  # matrix layout
-            names = [str(s) for s in np.atleast_1d(data["joint_names"])]
-            cols: dict[str, np.ndarray | None] = {}
-            for k, v in data.items():
-                if k in KINDS and v.ndim == 2 and v.shape[1] == len(names):
-                    for i, j in enumerate(names):
-                        cols[f"{k}_{j}"] = v[:, i].astype(np.float64)
-                elif v.ndim == 1 and v.dtype.kind in "fiu":
-                    cols[k] = v.astype(np.float64)
-            return cols
-        return {
-            k: v.astype(np.float64) if v.ndim == 1 and v.dtype.kind in "fiu" else None
-            for k, v in data.items()
-        }
+        return npz_columns(path)
     import pyarrow as pa
 
     try:
@@ -251,17 +247,6 @@ def _read_columns(path: Path, fmt: str) -> dict[str, np.ndarray | None]:
     except (pa.ArrowInvalid, OSError) as exc:
         raise LogError(f"{path}: cannot read it as {fmt}: {exc}") from None
     return _table_columns(table, path)
-
-
-def _joints_from_columns(names: Sequence[str]) -> list[str]:
-    joints = []
-    for name in names:
-        for kind in KINDS:
-            if name.startswith(kind + "_") and len(name) > len(kind) + 1:
-                j = name[len(kind) + 1 :]
-                if j not in joints:
-                    joints.append(j)
-    return joints
 
 
 def read_log(
@@ -312,7 +297,7 @@ def read_log(
     renamed_from = {v: k for k, v in mapping.items()}
     names = [renamed_from.get(n, n) for n in raw]
     if joints is None:
-        joints = _joints_from_columns(names)
+        joints = joints_from_columns(names)
         if not joints:
             raise LogError(
                 f"{path}: no joint columns found; expected columns named q_<joint> and "

@@ -7,7 +7,7 @@
    (cubic splines) onto a uniform grid at its median rate.
 2. `detect_period`: a periodic excitation (the seed paper's sums of sinusoids) repeats; its
    period, found from the autocorrelation of the positions, lets the noise be measured from
-   the spread between periods (`torchjfa.sim.regressor_noise`). The log is resampled so that
+   the spread between periods (`torchjfa.data.regressor_noise`). The log is resampled so that
    a period is a whole number of samples.
 3. `torchjfa.data.differentiate`: zero-phase low-pass (Butterworth filtfilt or Savitzky-Golay)
    and derivatives. Measured velocities, when the log has them, are filtered and

@@ -331,6 +331,7 @@ def simulation_reference(path, robot: str):
     Raises:
         ValueError: if the file is not a trajectory or its joints are not the robot's.
     """
+    from .._joints import permutation
     from ..sim import load_robot
     from ..sim._robots import joint_names
     from ._fourier import FourierTrajectory
@@ -339,12 +340,9 @@ def simulation_reference(path, robot: str):
         raise ValueError(f"no trajectory file {str(path)!r}")
     traj = FourierTrajectory.load(path)
     names = joint_names(load_robot(robot))
-    if sorted(names) != sorted(traj.joint_names):
-        raise ValueError(
-            f"the trajectory's joints {list(traj.joint_names)} are not the simulated {robot}'s "
-            f"{list(names)}"
-        )
-    perm = [traj.joint_names.index(j) for j in names]
+    perm = permutation(
+        traj.joint_names, names, have_name="the trajectory", want_name=f"the simulated {robot}"
+    )
     return FourierTrajectory(
         traj.base_frequency, traj.posture[perm], traj.a[perm], traj.b[perm], names
     ).to_sinusoid()

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .._joints import permutation
 from ..dynamics import RigidBodyModel
 
 __all__ = ["Limits", "WorkspaceBox", "limits_from_model", "constraint_violations", "check_limits"]
@@ -197,7 +198,9 @@ class _Kinematics:
     def __init__(self, model: RigidBodyModel, frames: Sequence[str], dtype, device) -> None:
         self.chain = copy.deepcopy(model.chain).to(dtype=dtype, device=device)
         order = self.chain.get_joint_parameter_names()
-        self.perm = [model.joint_names.index(j) for j in order]
+        self.perm = permutation(
+            model.joint_names, order, have_name="the model", want_name="the kinematic chain"
+        )
         self.index = self.chain.get_frame_indices(*frames)
 
     def origins(self, q: torch.Tensor) -> torch.Tensor:

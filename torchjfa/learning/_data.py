@@ -1,6 +1,8 @@
 """`SimulatedLogDataModule`: a Lightning data module over the library's joint-log files.
 
-It reads a `torchjfa.sim.SimulatedLog` ``.npz`` file, cuts it in time into a training part
+It reads a log file (a `torchjfa.sim.SimulatedLog` ``.npz``, or any log `torchjfa.data.read_log`
+reads, with accelerations: a real log after `torchjfa.data.prepare` and `torchjfa.data.write_log`),
+cuts it in time into a training part
 (the first ``1 - val_fraction`` of the samples, rounded down to whole chunks) and a validation
 part (the rest), so that no validation sample is ever seen in training and no shuffling mixes the
 two; shuffling, when asked for, happens inside the training part only. Each item is one time
@@ -18,8 +20,10 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
+from .._joints import permutation
+from ..data import JointLog
 from ..io import load_identified
-from ..sim import SimulatedLog
+from ..sim import load_log
 
 __all__ = ["SimulatedLogDataModule", "StateTorqueDataset", "log_tensors", "time_split"]
 
@@ -30,11 +34,13 @@ _SIGNAL_SETS = {
 }
 
 
-def log_tensors(log: SimulatedLog, signals: str = "measured", joint_names=None):
+def log_tensors(log: JointLog, signals: str = "measured", joint_names=None):
     """``(q, qd, qdd, tau)`` of a log, each ``(n, n_dof)`` float64.
 
     Args:
-        log: the `SimulatedLog`.
+        log: a `JointLog` with accelerations (a `torchjfa.sim.SimulatedLog`, or a real log
+            after `torchjfa.data.prepare`); ``"true"`` and ``"measured_inputs"`` need a
+            `SimulatedLog`'s ground truth.
         signals: ``"measured"`` (noisy q, qd, tau and the differentiated qdd, what a robot
             gives), ``"true"`` (the noiseless state and applied torque) or
             ``"measured_inputs"`` (measured state, true torque: for evaluation).
@@ -43,12 +49,21 @@ def log_tensors(log: SimulatedLog, signals: str = "measured", joint_names=None):
     """
     if signals not in _SIGNAL_SETS:
         raise ValueError(f"signals must be one of {sorted(_SIGNAL_SETS)}, got {signals!r}")
+    where = getattr(log, "source", "the log")
+    if log.qd is None or log.qdd is None:
+        raise ValueError(
+            f"{where} has no {'velocities' if log.qd is None else 'accelerations'}; prepare it "
+            "first (torchjfa.data.prepare differentiates the positions)"
+        )
+    missing = [k for k in _SIGNAL_SETS[signals] if getattr(log, k, None) is None]
+    if missing:
+        raise ValueError(
+            f"signals={signals!r} needs {missing}, the ground truth of a simulated log; "
+            f"{where} is a {type(log).__name__} without it (use signals='measured')"
+        )
     out = [getattr(log, k) for k in _SIGNAL_SETS[signals]]
     if joint_names is not None:
-        names = tuple(joint_names)
-        if sorted(names) != sorted(log.joint_names):
-            raise ValueError(f"joints {names} differ from the log's joints {log.joint_names}")
-        perm = [log.joint_names.index(j) for j in names]
+        perm = permutation(log.joint_names, joint_names, where=where, want_name="the model")
         out = [v[:, perm] for v in out]
     return tuple(out)
 
@@ -94,10 +109,12 @@ class StateTorqueDataset(Dataset):
 
 
 class SimulatedLogDataModule(L.LightningDataModule):
-    """Train/validation data from a `SimulatedLog` file, split by time.
+    """Train/validation data from a log file, split by time.
 
     Args:
-        path: the log's ``.npz`` (written by `SimulatedLog.save`).
+        path: the log: a `torchjfa.sim.SimulatedLog` ``.npz`` (`SimulatedLog.save`), or a
+            CSV, NPZ or Parquet log with ``qdd`` columns (`torchjfa.data.write_log` of a
+            prepared `JointLog`), read by `torchjfa.sim.load_log`.
         identified: optionally an identified-model file (`torchjfa.io.save_identified`); each
             sample then carries its regressor ``"Y"`` and the columns follow the model's joint
             order. Memory: ``8 n n_dof n_params`` bytes.
@@ -170,7 +187,7 @@ class SimulatedLogDataModule(L.LightningDataModule):
         """Read the log, split it by time and (with ``identified``) compute the regressors."""
         if self.train_set is not None:
             return
-        log = SimulatedLog.load(self.path)
+        log = load_log(self.path)
         model = None if self.identified is None else load_identified(self.identified).model
         names = None if model is None else model.joint_names
         signals = log_tensors(log, self.signals, names)

@@ -2,19 +2,22 @@
 
 Use this package to rebuild the seed paper's robot experiments without the robots:
 `load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects,
-`generate_log` records a noisy `SimulatedLog` of the robot tracking a periodic excitation,
-`regressor_noise` estimates the regressor's input noise and the torque noise from the repeated
-periods, and `computed_torque` evaluates identified parameters in closed loop.
+`generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
+of the robot tracking a periodic excitation, and `computed_torque` evaluates identified
+parameters in closed loop. `regressor_noise` and `PeriodNoise` (the noise from the repeated
+periods) live in `torchjfa.data` and are re-exported here; `load_log` reads a `SimulatedLog`
+file as one and any other log file as a `torchjfa.data.JointLog`.
 """
 
+from ..data import PeriodNoise as PeriodNoise
+from ..data import regressor_noise as regressor_noise
 from ._control import ControlResult as ControlResult
 from ._control import computed_torque as computed_torque
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise
 from ._log import SimulatedLog as SimulatedLog
-from ._noise import PeriodNoise as PeriodNoise
-from ._noise import regressor_noise as regressor_noise
+from ._log import load_log as load_log
 from ._robots import EFFECTS as EFFECTS
 from ._robots import ROBOTS as ROBOTS
 from ._robots import UNMODELED as UNMODELED

@@ -29,6 +29,7 @@ import mujoco
 import numpy as np
 import torch
 
+from .._joints import permutation
 from .._progress import progress_bar
 from ._robots import check_hinge_robot, joint_names, joint_ranges
 from ._trajectory import SinusoidTrajectory
@@ -159,9 +160,9 @@ def computed_torque(
     id_names = _id_joint_names(inverse_dynamics, joint_names_id)
     if id_names is None:
         id_names = names
-    if sorted(id_names) != sorted(names):
-        raise ValueError(f"the model's joints {id_names} differ from the robot's {names}")
-    to_id = np.array([names.index(j) for j in id_names])  # id_vec = mj_vec[to_id]
+    to_id = np.array(  # id_vec = mj_vec[to_id]
+        permutation(names, id_names, have_name="the MuJoCo robot", want_name="the model")
+    )
     if not control_rate > 0 or not bandwidth_hz > 0 or not damping_ratio > 0:
         raise ValueError("control_rate, bandwidth_hz and damping_ratio must be positive")
     if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:

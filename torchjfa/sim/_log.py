@@ -1,8 +1,9 @@
 """`SimulatedLog`: a simulated joint log with its ground truth, saved to and loaded from ``.npz``.
 
-A log holds what identification uses (noisy measured q, qd, tau and the differentiated qdd),
-the noiseless signals of the same samples for evaluation, and how it was made (robot, rates,
-noise, seed, unmodeled effects, excitation). `torchjfa.sim.generate_log` makes one.
+A simulated log is a `torchjfa.data.JointLog` (what identification uses: noisy measured q, qd,
+tau and the differentiated qdd) plus the noiseless signals of the same samples for evaluation
+and how it was made (robot, rates, noise, seed, unmodeled effects, excitation), so that
+everything that takes a `JointLog` takes it. `torchjfa.sim.generate_log` makes one.
 
 The ``.npz`` format (``numpy.savez_compressed``, no pickled objects, read with
 ``allow_pickle=False``), version 1:
@@ -20,7 +21,7 @@ key                         shape, dtype         meaning
 ``q_true qd_true``          (n, n_dof), float64  noiseless state
 ``qdd_true``                (n, n_dof), float64  the simulator's acceleration (``qacc``)
 ``tau_true``                (n, n_dof), float64  the torque the motors applied
-``period_samples``          (), int64            samples per excitation period
+``period_samples``          (), int64            samples per excitation period (-1: None)
 ``control_rate``            (), float64          sampling (= control) rate, Hz
 ``seed``                    (), int64            seed, -1 when None
 ``noise_position``          (n_dof,), float64    position noise std, rad
@@ -47,13 +48,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..data import JointLog, NpzArchive, read_log
 from ._trajectory import SinusoidTrajectory
 
-__all__ = ["SensorNoise", "SimulatedLog"]
+__all__ = ["SensorNoise", "SimulatedLog", "load_log"]
 
 _FORMAT = "torchjfa.SimulatedLog"
 _VERSION = 1
-_SIGNALS = ("q", "qd", "qdd", "tau", "q_true", "qd_true", "qdd_true", "tau_true")
+_TRUTH = ("q_true", "qd_true", "qdd_true", "tau_true")
+_SIGNALS = ("q", "qd", "qdd", "tau", *_TRUTH)
+_NOISE_FIELDS = ("position_std", "velocity_std", "torque_std")
 _EFFECTS = ("damping", "armature", "frictionloss", "stiffness")
 
 
@@ -89,6 +93,14 @@ class SensorNoise:
 
         return SensorNoise(mul(self.position_std), mul(self.velocity_std), mul(self.torque_std))
 
+    def permuted(self, perm: list[int]) -> SensorNoise:
+        """The same noise with its per-joint sequences in ``perm`` order (floats stay)."""
+
+        def take(v):
+            return v if np.ndim(v) == 0 else tuple(np.asarray(v, dtype=np.float64)[perm].tolist())
+
+        return SensorNoise(*(take(getattr(self, k)) for k in _NOISE_FIELDS))
+
     def per_joint(self, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The three standard deviations as ``(n_dof,)`` arrays.
 
@@ -96,7 +108,7 @@ class SensorNoise:
             ValueError: on a wrong length, negative or non-finite value.
         """
         out = []
-        for name in ("position_std", "velocity_std", "torque_std"):
+        for name in _NOISE_FIELDS:
             v = np.asarray(getattr(self, name), dtype=np.float64)
             if v.ndim == 0:
                 v = np.full(n_dof, float(v))
@@ -108,13 +120,16 @@ class SensorNoise:
         return out[0], out[1], out[2]
 
 
-@dataclass(eq=False)
-class SimulatedLog:
-    """A simulated robot log: noisy signals for identification plus the ground truth.
+@dataclass(eq=False, kw_only=True)
+class SimulatedLog(JointLog):
+    """A simulated robot log: a `JointLog` of noisy signals for identification plus the truth.
 
     Every ``(n, n_dof)`` tensor is float64 on the CPU, columns in `joint_names` order, and
     the first sample is at the start of an excitation period (phase 0), so that sample ``k``
-    has phase ``k % period_samples``.
+    has phase ``k % period_samples``. `JointLog.select` and `JointLog.reorder` return a
+    `SimulatedLog` whose ground truth (the ``*_true`` arrays; with `reorder` also the noise,
+    the effects and the trajectory) stays aligned with the measured signals. Construct it
+    with keywords.
 
     Attributes:
         robot: the robot's name.
@@ -128,7 +143,8 @@ class SimulatedLog:
         q_true, qd_true: ``(n, n_dof)`` the noiseless state.
         qdd_true: ``(n, n_dof)`` the simulator's acceleration at each sample (``data.qacc``).
         tau_true: ``(n, n_dof)`` the torques the motors applied.
-        period_samples: samples per excitation period.
+        period_samples: samples per excitation period (None after a `select` that is not a
+            contiguous slice).
         control_rate: sampling and control rate, Hz.
         noise: the `SensorNoise` used.
         seed: the seed, or None.
@@ -140,17 +156,12 @@ class SimulatedLog:
     """
 
     robot: str
-    joint_names: tuple[str, ...]
-    t: torch.Tensor
-    q: torch.Tensor
     qd: torch.Tensor
     qdd: torch.Tensor
-    tau: torch.Tensor
     q_true: torch.Tensor
     qd_true: torch.Tensor
     qdd_true: torch.Tensor
     tau_true: torch.Tensor
-    period_samples: int
     control_rate: float
     noise: SensorNoise
     seed: int | None
@@ -161,39 +172,49 @@ class SimulatedLog:
     diff_cutoff_hz: float | None = None
 
     def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.qd is None or self.qdd is None:
+            raise ValueError("a SimulatedLog has velocities and accelerations: pass qd and qdd")
         n_dof = len(self.joint_names)
         n = self.t.shape[0]
-        for name in _SIGNALS:
-            v = getattr(self, name)
+        for name in _TRUTH:
+            v = torch.as_tensor(getattr(self, name), dtype=torch.float64).cpu()
             if tuple(v.shape) != (n, n_dof):
                 raise ValueError(f"{name} must have shape ({n}, {n_dof}), got {tuple(v.shape)}")
-        if self.period_samples < 1:
+            setattr(self, name, v)
+        if self.period_samples is not None and self.period_samples < 1:
             raise ValueError(f"period_samples must be positive, got {self.period_samples}")
 
-    @property
-    def n_samples(self) -> int:
-        return self.t.shape[0]
+    def _sample_arrays(self) -> dict[str, torch.Tensor]:
+        return {**super()._sample_arrays(), **{k: getattr(self, k) for k in _TRUTH}}
 
-    @property
-    def n_dof(self) -> int:
-        return len(self.joint_names)
-
-    @property
-    def n_periods(self) -> int:
-        """Whole periods in the log."""
-        return self.n_samples // self.period_samples
+    def _joint_fields(self, perm: list[int]) -> dict:
+        out = super()._joint_fields(perm)
+        out["noise"] = self.noise.permuted(perm)
+        out["effects"] = {k: np.asarray(v)[perm] for k, v in self.effects.items()}
+        if self.trajectory is not None:
+            tr = self.trajectory
+            out["trajectory"] = SinusoidTrajectory(
+                tr.base_frequency,
+                tr.offset[perm],
+                tr.amplitude[perm],
+                tr.harmonic[perm],
+                tr.phase[perm],
+            )
+        return out
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the log to ``path`` in the module's ``.npz`` format (compressed)."""
         n_dof = self.n_dof
         pos, vel, trq = self.noise.per_joint(n_dof)
+        period = -1 if self.period_samples is None else self.period_samples
         arrays: dict[str, np.ndarray] = {
             "format": np.array(_FORMAT),
             "version": np.array(_VERSION, dtype=np.int64),
             "robot": np.array(self.robot),
             "joint_names": np.array(self.joint_names, dtype=np.str_),
             "t": self.t.detach().cpu().numpy(),
-            "period_samples": np.array(self.period_samples, dtype=np.int64),
+            "period_samples": np.array(period, dtype=np.int64),
             "control_rate": np.array(self.control_rate, dtype=np.float64),
             "seed": np.array(-1 if self.seed is None else self.seed, dtype=np.int64),
             "noise_position": pos,
@@ -228,12 +249,13 @@ class SimulatedLog:
             FileNotFoundError: if the file does not exist.
             ValueError: if the file is not a `SimulatedLog` file of a known version.
         """
-        with np.load(os.fspath(path), allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-        if str(data.get("format", "")) != _FORMAT:
+        archive = NpzArchive(path)
+        if not _is_simulated(archive):
             raise ValueError(f"{os.fspath(path)!r} is not a torchjfa SimulatedLog .npz file")
+        data = archive.arrays()
         if int(data["version"]) != _VERSION:
             raise ValueError(f"unsupported SimulatedLog version {int(data['version'])}")
+        period = int(data["period_samples"])
         seed = int(data["seed"])
         cutoff = float(data["diff_cutoff_hz"])
         trajectory = None
@@ -254,7 +276,7 @@ class SimulatedLog:
             joint_names=tuple(str(s) for s in data["joint_names"]),
             t=tensor("t"),
             **{k: tensor(k) for k in _SIGNALS},
-            period_samples=int(data["period_samples"]),
+            period_samples=None if period < 0 else period,
             control_rate=float(data["control_rate"]),
             noise=SensorNoise(
                 tuple(data["noise_position"].tolist()),
@@ -267,4 +289,26 @@ class SimulatedLog:
             velocity_source=str(data["velocity_source"]),
             diff_method=str(data["diff_method"]),
             diff_cutoff_hz=None if np.isnan(cutoff) else cutoff,
+            source=archive.path,
         )
+
+
+def _is_simulated(archive: NpzArchive) -> bool:
+    return "format" in archive and str(archive.arrays(["format"])["format"]) == _FORMAT
+
+
+def load_log(path: str | os.PathLike, **read_options) -> JointLog:
+    """Read a log file: a `SimulatedLog` file as a `SimulatedLog`, any other as a `JointLog`.
+
+    Args:
+        path: a `SimulatedLog.save` file, or a CSV, NPZ or Parquet log.
+        read_options: keywords of `torchjfa.data.read_log` (``columns``, ``time_scale``, ...)
+            for a file that is not a `SimulatedLog`.
+
+    Raises:
+        FileNotFoundError, ValueError: as `SimulatedLog.load` and `torchjfa.data.read_log`.
+    """
+    path = os.fspath(path)
+    if path.lower().endswith(".npz") and _is_simulated(NpzArchive(path)):
+        return SimulatedLog.load(path)
+    return read_log(path, **read_options)

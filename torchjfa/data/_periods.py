@@ -9,8 +9,10 @@ torque estimates the output noise ``psi_y``. Pass ``input_noise`` to `BayesianJF
 projection's metric ``X^T X + N diag(input_noise)``.
 
 The estimate is unbiased when the true motion is exactly periodic (the default controller of
-`generate_log` sees the true state) and the noise is independent between periods. Noise is
-allowed to be correlated within a period (the differentiation filter makes it so).
+`torchjfa.sim.generate_log` sees the true state; a real robot repeating its excitation comes
+close) and the noise is independent between periods. Noise is allowed to be correlated within
+a period (the differentiation filter makes it so). A real log needs whole-sample periods that
+start at its first sample: `torchjfa.data.prepare` resamples and trims it so.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ from dataclasses import dataclass
 
 import torch
 
+from .._joints import permutation
 from .._progress import progress_bar
-from ._log import SimulatedLog
+from ._log import JointLog
 
 __all__ = ["PeriodNoise", "regressor_noise"]
 
@@ -51,18 +54,9 @@ class PeriodNoise:
     column_power: torch.Tensor | None = None
 
 
-def _permutation(model_names, log_names) -> list[int]:
-    model_names, log_names = tuple(model_names), tuple(log_names)
-    if sorted(model_names) != sorted(log_names):
-        raise ValueError(
-            f"the model's joints {model_names} and the log's joints {log_names} differ"
-        )
-    return [log_names.index(j) for j in model_names]
-
-
 def regressor_noise(
     model,
-    log: SimulatedLog,
+    log: JointLog,
     *,
     max_periods: int | None = None,
     progress: bool = False,
@@ -73,8 +67,10 @@ def regressor_noise(
     Args:
         model: a `torchjfa.dynamics.RigidBodyModel` of the logged robot (its ``regressor``
             and ``joint_names`` are used; the log's columns are matched by joint name).
-        log: a `SimulatedLog` (or any object with ``q, qd, qdd, tau`` ``(n, n_dof)``,
-            ``joint_names`` and ``period_samples``) whose first sample starts a period.
+        log: a `JointLog` with ``qd``, ``qdd`` and ``period_samples`` (a prepared real log,
+            or a `torchjfa.sim.SimulatedLog`; any object with ``q, qd, qdd, tau``
+            ``(n, n_dof)``, ``joint_names`` and ``period_samples`` will do) whose first sample
+            starts a period.
         max_periods: use at most this many whole periods (default all).
         progress: show a progress bar over the periods.
         joint_weights: ``(n_dof,)`` weights of each joint's equations (model order) when the
@@ -87,7 +83,17 @@ def regressor_noise(
     Raises:
         ValueError: if the log has fewer than two whole periods or other joints than the model.
     """
-    perm = _permutation(model.joint_names, log.joint_names)
+    perm = permutation(log.joint_names, model.joint_names, want_name="the model")
+    if log.qd is None or log.qdd is None:
+        raise ValueError(
+            "the log has no velocities or accelerations; prepare it first "
+            "(torchjfa.data.prepare differentiates the positions)"
+        )
+    if log.period_samples is None:
+        raise ValueError(
+            "the log has no period_samples; the noise is estimated from the spread between "
+            "periods (prepare a periodic log with torchjfa.data.prepare)"
+        )
     P = int(log.period_samples)
     n_per = log.q.shape[0] // P
     if max_periods is not None:
