@@ -300,13 +300,13 @@ def cmd_evaluate(args) -> int:
         args.robot, n_samples=args.n_samples, seed=args.seed, progress=not args.quiet
     )
     try:
-        perm = [log.joint_names.index(j) for j in model.joint_names]
+        log = log.reorder(model.joint_names)
     except ValueError:
         raise UsageError(
             f"the model's joints {model.joint_names} are not the simulated {args.robot}'s "
             f"{log.joint_names}"
         ) from None
-    q, qd, qdd, tau = (getattr(log, k + "_true")[:, perm] for k in ("q", "qd", "qdd", "tau"))
+    q, qd, qdd, tau = (getattr(log, k + "_true") for k in ("q", "qd", "qdd", "tau"))
     pred = predicted_torques(model, theta, q, qd, qdd, tau)
     nmse, rms = torque_errors(tau, pred)
     print(f"{args.robot}: torque prediction on a fresh noiseless trajectory (seed {args.seed})")

@@ -640,7 +640,7 @@ def make_report(
     Args:
         result: from `torchjfa.identify` (``jackknife=K`` fills the spread column).
         validation: held-out prepared `JointLog` (q, qd, qdd, tau), joints in any order.
-        period_noise: a `torchjfa.sim.PeriodNoise` of the training data (the spread between
+        period_noise: a `torchjfa.data.PeriodNoise` of the training data (the spread between
             excitation periods), or None.
         settings: free-form record of how the data were prepared and identified (JSON-ready).
 

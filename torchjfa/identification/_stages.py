@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from .._joints import permutation
 from ..data import (
     DEFAULT_CUTOFF_HZ,
     JointLog,
@@ -25,6 +26,7 @@ from ..data import (
     cutoff_grid,
     prepare,
     read_log,
+    regressor_noise,
 )
 from ..dynamics import RigidBodyModel
 from ..pipeline import IdentificationResult, noise_vector, residual_joint_weights
@@ -150,7 +152,7 @@ def joint_limits(model: RigidBodyModel) -> np.ndarray | None:
     if sorted(order) != sorted(model.joint_names):
         return None
     lim = np.stack([np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)], axis=1)
-    return lim[[order.index(j) for j in model.joint_names]]
+    return lim[permutation(order, model.joint_names, have_name="the description's limits")]
 
 
 # ------------------------------------------------------------------------------ prepare
@@ -287,8 +289,6 @@ def choose_noise(model: RigidBodyModel, data: PreparedData, options: Options | N
     Raises:
         IdentificationError: ``input_noise="periods"`` without two excitation periods.
     """
-    from ..sim import regressor_noise  # TODO(lead): ..data once it moves
-
     options = Options() if options is None else options
     train, warnings = data.train, []
     weights = None

@@ -4,7 +4,7 @@
   identified theta frozen or fine-tuned through `VirtualParameters`; the residual network is an
   `MLP` of the whole state or a `JointResidual` (each joint from its own state).
 - `ResidualDynamicsModule` (``LightningModule``) and `SimulatedLogDataModule`
-  (``LightningDataModule`` over `torchjfa.sim.SimulatedLog` files, split by time) train it,
+  (``LightningDataModule`` over log files (`torchjfa.data.JointLog` with accelerations, or `torchjfa.sim.SimulatedLog`), split by time) train it,
   on one or several processes (DDP); ``python -m torchjfa.learning.cli fit --config cfg.yaml``
   is the command-line entry point (an example config is in ``torchjfa/learning/configs/``).
 - `load_checkpoint` rebuilds the trained `ResidualDynamics` from a Lightning checkpoint without

@@ -6,7 +6,7 @@ Each joint follows a sum of a few sinusoids with different frequencies and phase
 
 with integer harmonics ``n_jk`` of one base frequency ``f0``, so the whole reference repeats
 with period ``T = 1 / f0`` and the repetitions give an estimate of the sensor noise (see
-`torchjfa.sim.regressor_noise`). Velocities and accelerations are the exact derivatives.
+`torchjfa.data.regressor_noise`). Velocities and accelerations are the exact derivatives.
 """
 
 from __future__ import annotations
