@@ -132,8 +132,8 @@ class LinearEstimator:
         return False
 
     def _needs_folds(self) -> bool:
-        """Private alias of `needs_folds`, kept for `torchjfa.pipeline` until it reads the
-        property."""
+        """Private alias of `needs_folds`, kept for the callers in `torchjfa.pipeline` until
+        they read the property; to be removed then."""
         return self.needs_folds
 
     # -------------------------------------------------------------- for subclasses

@@ -22,7 +22,7 @@ __all__ = ["MomentEstimator", "batched_rss", "fold_intercepts", "train_test_spli
 
 
 class MomentEstimator(LinearEstimator):
-    """`LinearEstimator` that checks ``fit_intercept``, ``cv`` and ``verbose`` at fit time.
+    """`LinearEstimator` that checks ``fit_intercept`` and ``cv`` at fit time.
 
     Subclasses implement ``_check_params(n_features)`` (`LinearEstimator._check_params`:
     raising ``ValueError`` on invalid hyper-parameters) in addition to ``_solve``.
