@@ -144,6 +144,43 @@ def _run_processes(fn, nprocs: int, args: tuple) -> None:
                 p.join(5)
 
 
+def _moments_worker(rank: int, world_size: int, port: int, out_dir: str) -> None:
+    """Each rank's own rows, reduced in place (`Moments.all_reduce`) and as a pair in one
+    message (`all_reduce_moments`)."""
+    torch.set_num_threads(1)
+    X, y = _rows(rank)
+    with process_group(
+        "gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=world_size
+    ):
+        mine = Moments.from_data(X, y)
+        pair = all_reduce_moments([mine, Moments.from_data(2 * X, y)])
+        assert mine.all_reduce() is mine
+    torch.save(
+        {"single": mine.to_flat(), "pair": [m.to_flat() for m in pair]},
+        os.path.join(out_dir, f"moments{rank}.pt"),
+    )
+
+
+def _rows(rank: int) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(10 + rank)
+    n = 30 + 7 * rank  # shares of different lengths
+    X = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    return X, torch.randn(n, generator=g, dtype=torch.float64)
+
+
+def test_two_processes_all_reduce_moments_in_place_and_in_one_message(tmp_path):
+    _run_processes(_moments_worker, 2, (2, _free_port(), str(tmp_path)))
+    X, y = (torch.cat(v) for v in zip(_rows(0), _rows(1), strict=True))
+    whole, doubled = Moments.from_data(X, y), Moments.from_data(2 * X, y)
+    for r in range(2):
+        res = torch.load(tmp_path / f"moments{r}.pt", weights_only=True)
+        for got, ref in ((res["single"], whole), *zip(res["pair"], (whole, doubled), strict=True)):
+            m = Moments.from_flat(got, 4)
+            assert m.n_rows == ref.n_rows == 67
+            for k in FIELDS:
+                assert rel(getattr(m, k), getattr(ref, k)) <= 1e-12, k
+
+
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     d = tmp_path_factory.mktemp("dist_logs")

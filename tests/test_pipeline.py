@@ -157,7 +157,8 @@ class _FoldOLS(OLS):
         super().__init__(fit_intercept=False)
         self.cv = cv
 
-    def _needs_folds(self) -> bool:
+    @property
+    def needs_folds(self) -> bool:
         return True
 
     def _solve(self, moments, folds):

@@ -91,6 +91,46 @@ def test_all_reduce_without_process_group_is_identity():
     torch.testing.assert_close(m.xtx, before)
 
 
+def test_flat_round_trip_layout_and_linearity():
+    X, y = _data()
+    w = torch.rand(X.shape[0], generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    a, b = Moments.from_data(X[:70], y[:70], w[:70]), Moments.from_data(X[70:], y[70:])
+    d = a.n_features
+    flat = a.to_flat()
+    assert flat.dtype == torch.float64 and flat.shape == (Moments.flat_size(d),)
+    assert Moments.flat_size(d) == d * d + 2 * d + 4
+    # the documented layout, written out
+    ref = torch.cat(
+        [a.n[None], a.sum_x, a.sum_y[None], a.xtx.flatten(), a.xty, a.yty[None]]
+        + [torch.tensor([70.0], dtype=torch.float64)]
+    )
+    assert torch.equal(flat, ref)
+    back = Moments.from_flat(flat, d)
+    assert back.n_rows == a.n_rows == 70
+    for k in ("n", "sum_x", "sum_y", "xtx", "xty", "yty"):
+        assert torch.equal(getattr(back, k), getattr(a, k)), k
+    flat.zero_()  # no storage shared with the vector
+    assert torch.equal(back.xtx, a.xtx)
+    # a sum of flat vectors is the flat vector of the sum (what an all-reduce relies on)
+    summed = Moments.from_flat(a.to_flat() + b.to_flat(), d)
+    both = a + b
+    assert summed.n_rows == both.n_rows
+    for k in ("n", "sum_x", "sum_y", "xtx", "xty", "yty"):
+        torch.testing.assert_close(getattr(summed, k), getattr(both, k), rtol=1e-15, atol=0)
+
+
+def test_from_flat_bad_input():
+    flat = Moments.zeros(3).to_flat()
+    with pytest.raises(ValueError, match="1-D tensor of 19 values"):
+        Moments.from_flat(flat[:-1], 3)
+    with pytest.raises(ValueError, match="of 4 features"):
+        Moments.from_flat(flat, 4)
+    with pytest.raises(ValueError, match="1-D"):
+        Moments.from_flat(flat[None], 3)
+    with pytest.raises(ValueError, match="list"):
+        Moments.from_flat(flat.tolist(), 3)
+
+
 @pytest.mark.parametrize(
     "X, y, match",
     [

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["as_tensor", "check_finite", "check_Xy", "check_X"]
+__all__ = ["as_tensor", "check_finite", "check_Xy", "check_X", "check_joint_weights"]
 
 
 def as_tensor(value, *, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
@@ -123,3 +123,37 @@ def check_Xy(
         if bool((weights < 0).any()):
             raise ValueError("weights must be non-negative")
     return X, y, weights
+
+
+def check_joint_weights(
+    weights, n_dof: int, *, positive: bool = False, dtype=torch.float64, device=None
+) -> torch.Tensor | None:
+    """Check per-joint weights of the torque equations (weighted least squares).
+
+    Args:
+        weights: ``(n_dof,)`` weight of each joint's rows, in the model's joint order, or None
+            (no weighting).
+        n_dof: the robot's number of joints.
+        positive: require every weight ``> 0``; by default a joint may have weight 0 (its rows
+            are left out), but not all of them.
+        dtype, device: of the returned tensor (default float64, the input's device).
+
+    Returns:
+        The weights as a ``(n_dof,)`` tensor, or None when ``weights`` is None.
+
+    Raises:
+        TypeError: if ``weights`` cannot be read as numbers.
+        ValueError: on another shape, NaN or inf, a negative weight, all weights 0, or a zero
+            weight when ``positive``.
+    """
+    if weights is None:
+        return None
+    w = as_tensor(weights, name="joint_weights", dtype=dtype, device=device)
+    if tuple(w.shape) != (n_dof,):
+        raise ValueError(f"joint_weights must have shape ({n_dof},), got {tuple(w.shape)}")
+    check_finite(w, "joint_weights")
+    if positive and not bool((w > 0).all()):
+        raise ValueError(f"joint_weights must be positive, got {w.tolist()}")
+    if bool((w < 0).any()) or not bool((w > 0).any()):
+        raise ValueError("joint_weights must be non-negative and not all zero")
+    return w

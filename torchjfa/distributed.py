@@ -106,26 +106,6 @@ def rank_and_world_size(group=None) -> tuple[int, int]:
     return dist.get_rank(group), dist.get_world_size(group)
 
 
-def _pack(m: Moments) -> torch.Tensor:
-    rows = torch.tensor([float(m.n_rows)], dtype=torch.float64, device=m.xtx.device)
-    parts = (m.n.reshape(1), m.sum_x, m.sum_y.reshape(1), m.xtx.reshape(-1), m.xty)
-    return torch.cat([*parts, m.yty.reshape(1), rows])
-
-
-def _unpack(flat: torch.Tensor, d: int) -> Moments:
-    sizes = (1, d, 1, d * d, d, 1, 1)
-    n, sx, sy, xtx, xty, yty, rows = flat.split(sizes)
-    return Moments(
-        n[0].clone(),
-        sx.clone(),
-        sy[0].clone(),
-        xtx.reshape(d, d).clone(),
-        xty.clone(),
-        yty[0].clone(),
-        n_rows=int(round(float(rows[0]))),
-    )
-
-
 def all_reduce_moments(moments: Moments | Sequence[Moments], group=None):
     """Sum `Moments` over all processes with one ``all_reduce``.
 
@@ -161,9 +141,9 @@ def all_reduce_moments(moments: Moments | Sequence[Moments], group=None):
     if not (dist.is_available() and dist.is_initialized()):
         out = [m.copy() for m in items]
     else:
-        flat = torch.cat([_pack(m) for m in items])
+        flat = torch.cat([m.to_flat() for m in items])
         dist.all_reduce(flat, op=dist.ReduceOp.SUM, group=group)
-        out = [_unpack(part, d) for part in flat.split(flat.shape[0] // len(items))]
+        out = [Moments.from_flat(part, d) for part in flat.split(Moments.flat_size(d))]
     return out[0] if single else out
 
 

@@ -208,45 +208,66 @@ class Moments:
 
         Does nothing when no process group is initialised, so the same code runs on one
         process. Every process must call it (it is a collective). Returns ``self``.
+        `torchjfa.distributed.all_reduce_moments` reduces several `Moments` in one message.
         """
         import torch.distributed as dist
 
         if not (dist.is_available() and dist.is_initialized()):
             return self
-        packed = self._pack()
-        dist.all_reduce(packed, op=dist.ReduceOp.SUM, group=group)
-        self._unpack(packed)
+        flat = self.to_flat()
+        dist.all_reduce(flat, op=dist.ReduceOp.SUM, group=group)
+        summed = Moments.from_flat(flat, self.n_features)
+        for key in (*_FIELDS, "n_rows"):
+            setattr(self, key, getattr(summed, key))
         return self
 
-    def _pack(self) -> torch.Tensor:
-        return torch.cat(
-            [
-                self.n.reshape(1),
-                self.sum_x,
-                self.sum_y.reshape(1),
-                self.xtx.reshape(-1),
-                self.xty,
-                self.yty.reshape(1),
-                torch.tensor([float(self.n_rows)], dtype=torch.float64, device=self.xtx.device),
-            ]
-        )
+    # ------------------------------------------------------------------ serialisation
+    @staticmethod
+    def flat_size(n_features: int) -> int:
+        """Length of `to_flat`'s vector for ``n_features`` inputs: ``d^2 + 2 d + 4``."""
+        d = int(n_features)
+        return 1 + d + 1 + d * d + d + 1 + 1
 
-    def _unpack(self, packed: torch.Tensor) -> None:
-        d = self.n_features
-        i = 0
-        self.n = packed[i].clone()
-        i += 1  # noqa: E702
-        self.sum_x = packed[i : i + d].clone()
-        i += d  # noqa: E702
-        self.sum_y = packed[i].clone()
-        i += 1  # noqa: E702
-        self.xtx = packed[i : i + d * d].reshape(d, d).clone()
-        i += d * d  # noqa: E702
-        self.xty = packed[i : i + d].clone()
-        i += d  # noqa: E702
-        self.yty = packed[i].clone()
-        i += 1  # noqa: E702
-        self.n_rows = int(round(float(packed[i])))
+    def to_flat(self) -> torch.Tensor:
+        """The statistics as one float64 vector, shape ``(flat_size(d),)``, on their device.
+
+        The layout is ``[n, sum_x (d), sum_y, xtx (d*d, row-major), xty (d), yty, n_rows]``.
+        It is linear: the flat vector of a sum of `Moments` is the sum of their flat vectors,
+        so an ``all_reduce`` (or any sum) of flat vectors followed by `from_flat` adds
+        `Moments`. ``n_rows`` is stored as a float64, exact up to 2^53 rows.
+        """
+        rows = torch.tensor([float(self.n_rows)], dtype=torch.float64, device=self.xtx.device)
+        parts = (self.n.reshape(1), self.sum_x, self.sum_y.reshape(1), self.xtx.reshape(-1))
+        return torch.cat([*parts, self.xty, self.yty.reshape(1), rows])
+
+    @classmethod
+    def from_flat(cls, flat: torch.Tensor, n_features: int) -> Moments:
+        """The `Moments` of a vector laid out by `to_flat` (copied: no storage is shared).
+
+        Args:
+            flat: shape ``(flat_size(n_features),)``.
+            n_features: d.
+
+        Raises:
+            ValueError: if ``flat`` is not 1-D of length ``flat_size(n_features)``.
+        """
+        d = int(n_features)
+        size = cls.flat_size(d)
+        if not isinstance(flat, torch.Tensor) or flat.ndim != 1 or flat.shape[0] != size:
+            shape = tuple(flat.shape) if isinstance(flat, torch.Tensor) else type(flat).__name__
+            raise ValueError(
+                f"a flat Moments of {d} features is a 1-D tensor of {size} values, got {shape}"
+            )
+        n, sx, sy, xtx, xty, yty, rows = flat.to(torch.float64).split((1, d, 1, d * d, d, 1, 1))
+        return cls(
+            n[0].clone(),
+            sx.clone(),
+            sy[0].clone(),
+            xtx.reshape(d, d).clone(),
+            xty.clone(),
+            yty[0].clone(),
+            n_rows=int(round(float(rows[0]))),
+        )
 
     # ------------------------------------------------------------------ derived quantities
     @property

@@ -23,6 +23,7 @@ import torch
 
 from .._joints import permutation
 from .._progress import progress_bar
+from .._validation import check_joint_weights
 from ._log import JointLog
 
 __all__ = ["PeriodNoise", "regressor_noise"]
@@ -127,9 +128,7 @@ def regressor_noise(
             bar.update(1)
     var = M2 / (n_per - 1)  # (P, n_dof, n_params)
     if joint_weights is not None:
-        w = torch.as_tensor(joint_weights, dtype=torch.float64)
-        if tuple(w.shape) != (n_dof,):
-            raise ValueError(f"joint_weights must have shape ({n_dof},), got {tuple(w.shape)}")
+        w = check_joint_weights(joint_weights, n_dof)
         var = var * w[None, :, None]
         mean = mean * w.sqrt()[None, :, None]
     input_noise = var.mean(dim=(0, 1))

@@ -4,6 +4,11 @@ All share one scikit-learn-style interface (`LinearEstimator`): keyword-only hyp
 ``fit(X, y)`` / ``fit_moments(moments)`` returning ``self``, ``coef_``, ``intercept_`` and
 ``predict(X)``. Use `BayesianJFA` when inputs are noisy (robot identification); the others are
 the baselines of the seed paper.
+
+`make` builds one by the name the command line uses (``"bayes-jfa"``, ``"ols"``, ...;
+`available` lists them) and `register` adds a third-party estimator under a new name; the
+protocol it follows (``fit_moments``, ``coef_``, ``needs_folds``, ``cv``) is
+`LinearEstimator`'s.
 """
 
 from ._base import LinearEstimator as LinearEstimator
@@ -15,4 +20,7 @@ from ._linear import OLS as OLS
 from ._linear import TLS as TLS
 from ._linear import Ridge as Ridge
 from ._pls import PLS as PLS
+from ._registry import available as available
+from ._registry import make as make
+from ._registry import register as register
 from ._stepwise import Stepwise as Stepwise

@@ -33,10 +33,21 @@ class LinearEstimator:
     """Base class of the linear estimators.
 
     Subclasses store keyword-only hyper-parameters in ``__init__`` and implement `_solve`, which
-    sees the second moments of the informative (non-constant) columns only. Hyper-parameter
-    selection by cross-validation is done on *fold moments*: `fit` splits the data into
-    ``cv`` contiguous folds; `fit_moments` takes either one `Moments` (no CV possible, the
-    estimator must then be given its hyper-parameter) or a sequence of `Moments` used as folds.
+    sees the second moments of the informative (non-constant) columns only, and optionally
+    `_check_params`. Hyper-parameter selection by cross-validation is done on *fold moments*:
+    `fit` splits the data into ``cv`` contiguous folds; `fit_moments` takes either one
+    `Moments` (no CV possible, the estimator must then be given its hyper-parameter) or a
+    sequence of `Moments` used as folds.
+
+    The protocol that the library's flow (`torchjfa.pipeline.identify`, `jackknife`) relies on,
+    and that a third-party estimator implements (registered with
+    `torchjfa.estimators.register`):
+
+    - ``fit_moments(moments)`` with a `Moments` or a sequence of fold `Moments`, returning
+      ``self`` with ``coef_`` ``(d,)`` set;
+    - `needs_folds`, a read-only property: True when the estimator, as configured, chooses a
+      hyper-parameter by cross-validation over fold moments and so must be given folds;
+    - ``cv``: the number of folds to give it then (contiguous blocks of the samples).
 
     Attributes (after fitting):
         coef_: shape ``(d,)``, float64.
@@ -44,8 +55,6 @@ class LinearEstimator:
         n_features_in_: d.
     """
 
-    #: whether the estimator needs CV folds when a hyper-parameter is left to be chosen
-    _uses_folds = False
     #: the hyper-parameter that cross-validation chooses (for messages)
     _cv_parameter = "the hyper-parameter"
 
@@ -59,7 +68,7 @@ class LinearEstimator:
         # NaN and inf are caught by `Moments.update` from the statistics it forms anyway (a
         # separate isfinite pass over X cost three times the statistics themselves)
         X, y, weights = check_Xy(X, y, weights, finite=False)
-        if self._needs_folds():
+        if self.needs_folds:
             if X.shape[0] < 2:
                 raise ValueError(
                     f"{type(self).__name__} chooses {self._cv_parameter} by {self.cv}-fold "
@@ -79,9 +88,12 @@ class LinearEstimator:
                 cross-validation use the folds).
         """
         total, folds = as_folds(moments)
+        self._check_params(total.n_features)
+        if folds is not None and len(folds) < 2 and self.needs_folds:
+            raise ValueError(f"cross-validation needs at least 2 fold moments, got {len(folds)}")
         if not float(total.n) > 0:
             raise ValueError("cannot fit on Moments with no samples (total weight 0)")
-        if folds is None and self._needs_folds():
+        if folds is None and self.needs_folds:
             raise ValueError(
                 f"{type(self).__name__} chooses its hyper-parameter by cross-validation and needs "
                 "fold moments: pass a list of Moments (e.g. from torchjfa.kfold_moments), or set "
@@ -108,9 +120,26 @@ class LinearEstimator:
         X = check_X(X, n_features=self.n_features_in_)
         return X @ self.coef_.to(X) + self.intercept_.to(X)
 
-    # -------------------------------------------------------------- for subclasses
-    def _needs_folds(self) -> bool:
+    @property
+    def needs_folds(self) -> bool:
+        """Whether `fit_moments` must be given fold `Moments` (a sequence of ``cv`` of them).
+
+        True when the estimator, with its hyper-parameters as set, chooses one of them by
+        cross-validation over the folds (e.g. `Lasso` without ``alpha``, `PLS` without
+        ``n_components``); False (the default) when one `Moments` of all the data suffices.
+        Subclasses that cross-validate override it.
+        """
         return False
+
+    def _needs_folds(self) -> bool:
+        """Private alias of `needs_folds`, kept for the callers in `torchjfa.pipeline` until
+        they read the property; to be removed then."""
+        return self.needs_folds
+
+    # -------------------------------------------------------------- for subclasses
+    def _check_params(self, n_features: int) -> None:
+        """Raise ``ValueError`` (or ``TypeError``) on invalid hyper-parameters; called by
+        `fit_moments` before anything is solved. ``n_features``: the number of inputs d."""
 
     def _solve(self, moments: Moments, folds: list[Moments] | None) -> torch.Tensor:
         """Coefficients of the informative columns, from their moments. Shape ``(d_active,)``."""

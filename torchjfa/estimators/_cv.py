@@ -22,10 +22,10 @@ __all__ = ["MomentEstimator", "batched_rss", "fold_intercepts", "train_test_spli
 
 
 class MomentEstimator(LinearEstimator):
-    """`LinearEstimator` that checks its hyper-parameters at fit time.
+    """`LinearEstimator` that checks ``fit_intercept`` and ``cv`` at fit time.
 
-    Subclasses implement ``_check_params(n_features)`` (raising ``ValueError`` on invalid
-    hyper-parameters) in addition to ``_solve``.
+    Subclasses implement ``_check_params(n_features)`` (`LinearEstimator._check_params`:
+    raising ``ValueError`` on invalid hyper-parameters) in addition to ``_solve``.
     """
 
     def __init__(self, *, fit_intercept: bool = True, cv: int = 5, verbose: bool = False) -> None:
@@ -53,11 +53,8 @@ class MomentEstimator(LinearEstimator):
             ValueError: on invalid hyper-parameters, empty moments, or when a hyper-parameter
                 must be chosen by cross-validation and a single `Moments` was given.
         """
-        total, folds = as_folds(moments)
+        _, folds = as_folds(moments)
         self._check_common()
-        self._check_params(total.n_features)
-        if folds is not None and len(folds) < 2 and self._needs_folds():
-            raise ValueError(f"cross-validation needs at least 2 fold moments, got {len(folds)}")
         return super().fit_moments(moments if folds is None else folds)
 
     def _check_common(self) -> None:
@@ -76,9 +73,6 @@ class MomentEstimator(LinearEstimator):
         names = [k for k in inspect.signature(type(self).__init__).parameters if k != "self"]
         params = ", ".join(f"{k}={getattr(self, k)!r}" for k in names)
         return f"{type(self).__name__}({params})"
-
-    def _check_params(self, n_features: int) -> None:
-        """Raise ``ValueError`` on invalid hyper-parameters (``n_features``: total inputs)."""
 
 
 def check_positive_real(value, name: str, *, allow_zero: bool = False) -> float:

@@ -51,7 +51,7 @@ def jackknife(
             est = copy.deepcopy(estimator)
             if hasattr(est, "verbose"):
                 est.verbose = False
-            data = rest if est._needs_folds() else sum(rest[1:], rest[0].copy())
+            data = rest if est.needs_folds else sum(rest[1:], rest[0].copy())
             coefs.append(est.fit_moments(data).coef_.detach().to(torch.float64))
             bar.update(1)
     C = torch.stack(coefs)

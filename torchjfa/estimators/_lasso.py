@@ -260,8 +260,6 @@ class Lasso(MomentEstimator):
         n_iter_: coordinate-descent sweeps of the final fit.
     """
 
-    _uses_folds = True
-
     def __init__(
         self,
         *,
@@ -287,7 +285,9 @@ class Lasso(MomentEstimator):
 
     _cv_parameter = "alpha"
 
-    def _needs_folds(self) -> bool:
+    @property
+    def needs_folds(self) -> bool:
+        """True when ``alpha`` is None: it is then chosen by cross-validation."""
         return self.alpha is None
 
     def _check_params(self, n_features: int) -> None:

@@ -84,8 +84,6 @@ class PLS(MomentEstimator):
         n_components_grid_: the candidates, ``1..max_components``.
     """
 
-    _uses_folds = True
-
     def __init__(
         self,
         *,
@@ -101,7 +99,9 @@ class PLS(MomentEstimator):
 
     _cv_parameter = "n_components"
 
-    def _needs_folds(self) -> bool:
+    @property
+    def needs_folds(self) -> bool:
+        """True when ``n_components`` is None: it is then chosen by cross-validation."""
         return self.n_components is None
 
     def _check_params(self, n_features: int) -> None:

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from .._progress import progress_bar
+from .._validation import check_joint_weights
 from ..dynamics import RigidBodyModel
 from ..sim import SinusoidTrajectory, random_trajectory
 from ._fourier import FourierTrajectory, constrain_coefficients, fourier_states
@@ -102,10 +103,7 @@ def _sqrt_weights(joint_weights, n: int, like: torch.Tensor | None = None) -> to
     kw = {"dtype": torch.float64} if like is None else {"dtype": like.dtype, "device": like.device}
     if joint_weights is None:
         return torch.ones(n, **kw)
-    w = torch.as_tensor(np.asarray(joint_weights, dtype=np.float64), **kw)
-    if w.shape != (n,) or not bool((w > 0).all()) or not bool(torch.isfinite(w).all()):
-        raise ValueError(f"joint_weights must be {n} positive numbers, got {w.tolist()}")
-    return w.sqrt()
+    return check_joint_weights(joint_weights, n, positive=True, **kw).sqrt()
 
 
 def information_matrix(

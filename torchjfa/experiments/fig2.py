@@ -3,7 +3,7 @@
 `run` draws trials with `torchjfa.experiments.synthetic.make_problem`, fits every method on
 the noisy training set (hyper-parameters chosen on the training set only: GCV for ridge,
 contiguous 5-fold cross-validation for PLS and LASSO, an F-test for stepwise) and scores
-normalised MSE (MSE / var(y_test)) on a noiseless and a noisy test set. `summarize` averages over
+normalised MSE (`torchjfa.metrics.nmse`: MSE / var(y_test)) on a noiseless and a noisy test set. `summarize` averages over
 trials and `plot` draws the grouped bar chart. ``scripts/reproduce_fig2.py`` and
 ``notebooks/fig2.ipynb`` are thin shells over these functions.
 """
@@ -18,6 +18,7 @@ import torch
 
 from .._progress import progress_bar
 from ..estimators import JFA, OLS, PLS, TLS, BayesianJFA, Lasso, Ridge, Stepwise
+from ..metrics import nmse
 from .synthetic import SyntheticProblem, make_problem
 
 __all__ = [
@@ -137,8 +138,9 @@ def default_methods(
 
 
 def _nmse(X: torch.Tensor, y: torch.Tensor, coef: torch.Tensor, intercept: torch.Tensor) -> float:
-    pred = X @ coef.to(X) + intercept.to(X)
-    return float(((pred - y) ** 2).mean() / y.var(unbiased=False))
+    """`torchjfa.metrics.nmse` of the linear model's predictions ``X coef + intercept`` of
+    ``y``; ``X (n, d)``, ``y (n,)``."""
+    return float(nmse(X @ coef.to(X) + intercept.to(X), y))
 
 
 def run(

@@ -11,13 +11,13 @@
   Lightning. The identified model itself is saved and loaded by `torchjfa.io`.
 """
 
+from ..metrics import nmse as nmse  # re-exported: torchjfa.metrics is its home
 from ._data import SimulatedLogDataModule as SimulatedLogDataModule
 from ._data import StateTorqueDataset as StateTorqueDataset
 from ._data import log_tensors as log_tensors
 from ._data import time_split as time_split
 from ._lightning import ResidualDynamicsModule as ResidualDynamicsModule
 from ._lightning import load_checkpoint as load_checkpoint
-from ._metrics import nmse as nmse
 from ._residual import MLP as MLP
 from ._residual import JointResidual as JointResidual
 from ._residual import ResidualDynamics as ResidualDynamics
