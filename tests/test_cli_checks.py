@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from torchjfa.cli import main
-from torchjfa.identification import cap_period_noise as _cap_period_noise
-from torchjfa.identification import coverage_warnings as _coverage_warnings
 from torchjfa.data import JointLog, read_log, write_log
 from torchjfa.dynamics import RigidBodyModel
+from torchjfa.identification import cap_period_noise as _cap_period_noise
+from torchjfa.identification import coverage_warnings as _coverage_warnings
 from torchjfa.sim import PeriodNoise, model_path
 
 FAST = ["--quiet", "--estimator", "ols", "--jackknife", "0", "--no-plots"]

@@ -96,7 +96,7 @@ def choose_prior_weight(
         if hasattr(est, "verbose"):
             est.verbose = False
         moments = sum(train[1:], train[0].copy())
-        est.fit_moments(train if est._needs_folds() else moments)
+        est.fit_moments(train if est.needs_folds else moments)
         theta_hat = est.coef_.detach().to(torch.float64)
         fold_noise = noise
         if fold_noise is None and hasattr(est, "noise_x_"):

@@ -20,12 +20,14 @@ import shlex
 import sys
 from pathlib import Path
 
-from .identification._options import ESTIMATOR_NAMES as ESTIMATORS
+from .estimators import available as _estimators
 from .identification._options import JOINT_TERMS as _FRICTION
 from .identification._options import IdentificationError
 from .sim import ROBOTS
 
 __all__ = ["main", "ESTIMATORS"]
+
+ESTIMATORS = _estimators()  # the library's; a registered one is taken by torchjfa.identify
 
 _SIM_ROBOTS = tuple(ROBOTS)  # the simulated robots
 
@@ -369,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="result", help="output folder")
     p.add_argument(
         "--estimator",
-        choices=ESTIMATORS,
+        choices=_estimators(),
         default="ols",
         help="the estimator (OLS by default: on the real Panda log of docs/real-robot.md it "
         "predicts held-out torques better than Bayesian JFA)",

@@ -40,7 +40,7 @@ from ._prior import (
     prior_options,
 )
 from ._progress import progress_bar
-from ._validation import as_tensor, check_finite
+from ._validation import as_tensor, check_finite, check_joint_weights
 from .data import log_length, log_sources
 from .distributed import all_reduce_moments, rank_and_world_size, shard_range
 from .dynamics import InverseDynamics, RigidBodyModel
@@ -175,7 +175,7 @@ def stream_moments(
     device = torch.device("cpu") if device is None else torch.device(device)
     plan = _plan(lengths, folds, rank, world, chunk_size)
     p, n_dof = model.n_params, model.n_dof
-    weights = _joint_weights(joint_weights, n_dof)
+    weights = check_joint_weights(joint_weights, n_dof)
     parts = n_dof if per_joint else 1
     moments = [Moments.zeros(p, device=device) for _ in range(folds * parts)]
     todo = sum(b - a for segs in plan for a, b, _ in segs)
@@ -208,18 +208,6 @@ def stream_moments(
     if per_joint:
         moments = [moments[k * n_dof : (k + 1) * n_dof] for k in range(folds)]
     return moments[0] if n_folds is None else moments
-
-
-def _joint_weights(joint_weights, n_dof: int) -> torch.Tensor | None:
-    if joint_weights is None:
-        return None
-    w = as_tensor(joint_weights, name="joint_weights", dtype=torch.float64)
-    if tuple(w.shape) != (n_dof,):
-        raise ValueError(f"joint_weights must have shape ({n_dof},), got {tuple(w.shape)}")
-    check_finite(w, "joint_weights")
-    if bool((w < 0).any()) or not bool((w > 0).any()):
-        raise ValueError("joint_weights must be non-negative and not all zero")
-    return w
 
 
 def residual_joint_weights(
@@ -381,7 +369,7 @@ def blocks_needed(estimator: LinearEstimator, *, jackknife: int = 0, auto_prior:
     jackknife = int(jackknife)
     if jackknife == 1 or jackknife < 0:
         raise ValueError(f"jackknife must be 0 (off) or at least 2 blocks, got {jackknife}")
-    if estimator._needs_folds():
+    if estimator.needs_folds:
         return int(estimator.cv)
     if jackknife:
         return int(jackknife)
@@ -437,7 +425,7 @@ def estimate(
         progress: show a progress bar over the jackknife's refits.
     """
     check_estimator(estimator)
-    if (estimator._needs_folds() or jackknife) and not folds:
+    if (estimator.needs_folds or jackknife) and not folds:
         raise ValueError(
             f"{type(estimator).__name__} needs the fold moments here (cross-validation or the "
             "jackknife): pass folds=stream_moments(..., n_folds=K)"
@@ -445,7 +433,7 @@ def estimate(
     coefs = theta_hat_std = None
     if jackknife:
         coefs, theta_hat_std = _jackknife(estimator, folds, progress=progress)
-    estimator.fit_moments(list(folds) if estimator._needs_folds() else moments)
+    estimator.fit_moments(list(folds) if estimator.needs_folds else moments)
     return Estimate(
         estimator=estimator,
         theta_hat=estimator.coef_.detach().to(torch.float64),
@@ -650,12 +638,14 @@ def identify(
         estimator=estimator,
         moments=moments,
         # the blocks of the prior's choice alone are not kept
-        folds=folds if (jackknife or estimator._needs_folds()) else None,
+        folds=folds if (jackknife or estimator.needs_folds) else None,
         projection=None if projected is None else projected.projection,
         input_noise=fit.metric_noise,
         world_size=world,
         theta_hat_std=fit.theta_hat_std,
-        joint_weights=None if joint_weights is None else _joint_weights(joint_weights, model.n_dof),
+        joint_weights=None
+        if joint_weights is None
+        else check_joint_weights(joint_weights, model.n_dof),
         theta_hat_jackknife=fit.theta_hat_jackknife,
         prior_weight=None if projected is None else projected.prior_weight,
         prior_choice=None if projected is None else projected.prior_choice,

@@ -32,6 +32,7 @@ import torch
 
 from ._report_figures import parameters_figure, torques_figure
 from .data import JointLog
+from .metrics import nmse, rms
 from .physical import BaseParameters, ConsistencyReport, base_parameters, check
 from .physical._base import parameter_kind
 from .pipeline import IdentificationResult
@@ -71,12 +72,13 @@ class TorqueFit:
 def torque_errors(tau, predicted) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-joint ``(nMSE, RMS)`` of ``predicted`` against ``tau``, both ``(n_samples, n_dof)``.
 
-    nMSE is ``mean((tau - predicted)^2) / var(tau)`` (population variance) per joint.
+    nMSE is ``mean((tau - predicted)^2) / var(tau)`` (population variance) per joint: the one
+    definition, `torchjfa.metrics.nmse`; RMS in N m (`torchjfa.metrics.rms`). Array-likes are
+    read as float64.
     """
     tau = torch.as_tensor(tau, dtype=torch.float64)
-    err = torch.as_tensor(predicted, dtype=torch.float64) - tau
-    mse = err.pow(2).mean(0)
-    return mse / tau.var(0, correction=0), mse.sqrt()
+    predicted = torch.as_tensor(predicted, dtype=torch.float64)
+    return nmse(predicted, tau, per_joint=True), rms(predicted, tau, per_joint=True)
 
 
 def predicted_torques(model, theta, q, qd, qdd, tau) -> torch.Tensor:

@@ -23,4 +23,5 @@ from ._pls import PLS as PLS
 from ._registry import available as available
 from ._registry import make as make
 from ._registry import register as register
+from ._registry import takes as takes
 from ._stepwise import Stepwise as Stepwise

@@ -131,11 +131,6 @@ class LinearEstimator:
         """
         return False
 
-    def _needs_folds(self) -> bool:
-        """Private alias of `needs_folds`, kept for the callers in `torchjfa.pipeline` until
-        they read the property; to be removed then."""
-        return self.needs_folds
-
     # -------------------------------------------------------------- for subclasses
     def _check_params(self, n_features: int) -> None:
         """Raise ``ValueError`` (or ``TypeError``) on invalid hyper-parameters; called by

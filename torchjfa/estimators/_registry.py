@@ -28,7 +28,7 @@ from ._linear import OLS, TLS, Ridge
 from ._pls import PLS
 from ._stepwise import Stepwise
 
-__all__ = ["available", "make", "register"]
+__all__ = ["available", "make", "register", "takes"]
 
 # name -> factory (a class or function taking keyword options). The library's own estimators;
 # `register` adds to it for the life of the process.
@@ -93,6 +93,15 @@ def _options(factory) -> tuple[list[str], bool]:
     kinds = (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
     names = [p.name for p in params if p.kind in kinds]
     return names, any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
+
+
+def takes(name: str, option: str) -> bool:
+    """Whether the estimator registered as ``name`` takes the keyword option ``option`` (e.g.
+    ``"input_noise"``, which the identification flow gives where an estimator takes it)."""
+    if name not in _FACTORIES:
+        raise ValueError(f"unknown estimator {name!r}; available: {', '.join(_FACTORIES)}")
+    accepted, any_keyword = _options(_FACTORIES[name])
+    return option in accepted or any_keyword
 
 
 def make(name: str, **options) -> LinearEstimator:

@@ -6,7 +6,7 @@ For the simulated 7-DoF head (420 Hz) and 10-DoF arm (480 Hz) of `torchjfa.sim`,
    excitation with its unmodeled effects (armature, dry friction, cable stiffness) ON;
 2. forms the regression's `Moments` in contiguous time blocks (the folds of LASSO's
    cross-validation) and estimates the regressor's input noise from the repeated periods
-   (`torchjfa.sim.regressor_noise`);
+   (`torchjfa.data.regressor_noise`);
 3. identifies the parameters with each method and projects them onto physically consistent
    parameters (`torchjfa.physical.project`, virtual parametrisation, eq. 5 and 8):
 
@@ -42,10 +42,10 @@ import torch
 
 from .._progress import progress_bar
 from ..dynamics import InverseDynamics, RigidBodyModel
-from ..estimators import BayesianJFA, Lasso, Ridge, Stepwise
-from ..physical import check, project
-from ..pipeline import residual_joint_weights, stream_moments
-from ..report import torque_errors
+from ..estimators import make
+from ..metrics import nmse
+from ..physical import check
+from ..pipeline import estimate, project_estimate, residual_joint_weights, stream_moments
 from ..sim import (
     DEFAULT_RATES,
     ControlResult,
@@ -170,7 +170,8 @@ def block_moments(
     chunk_size: int = 4096,
     progress: bool = False,
 ) -> list[Moments]:
-    """`Moments` of ``n_blocks`` contiguous time blocks of a log (fold moments for CV).
+    """`Moments` of ``n_blocks`` contiguous time blocks of a log (fold moments for CV):
+    `torchjfa.pipeline.stream_moments` with ``n_folds=n_blocks``.
 
     Args:
         model: the robot model (its regressor).
@@ -186,31 +187,30 @@ def block_moments(
     n = q.shape[0]
     if isinstance(n_blocks, bool) or not isinstance(n_blocks, int) or not 2 <= n_blocks <= n:
         raise ValueError(f"n_blocks must be an int in [2, {n}], got {n_blocks!r}")
-    edges = np.linspace(0, n, n_blocks + 1).round().astype(int)
-    out = []
-    with progress_bar(total=n, desc="moments", enabled=progress, unit="sample") as bar:
-        for s, e in zip(edges[:-1], edges[1:], strict=True):
-            out.append(model.moments(q[s:e], qd[s:e], qdd[s:e], tau[s:e], chunk_size=chunk_size))
-            bar.update(int(e - s))
-    return out
+    log = {"q": q, "qd": qd, "qdd": qdd, "tau": tau}
+    return stream_moments(model, log, n_folds=n_blocks, chunk_size=chunk_size, progress=progress)
+
+
+#: each method's estimator (`torchjfa.estimators.make`) and its default options
+_ESTIMATORS = {
+    "ridge": ("ridge", {}),
+    "lasso": ("lasso", {"n_alphas": 20, "tol": 1e-6, "max_iter": 2000}),
+    "stepwise": ("stepwise", {}),
+    "bjfa": ("bayes-jfa", {"max_iter": 20000}),
+    "bjfa-noise": ("bayes-jfa", {"max_iter": 20000}),
+}
 
 
 def _estimator(method: str, input_noise, options: Mapping) -> object:
-    bjfa = {"max_iter": 20000, **options.get("bjfa", {})}
-    if method == "ridge":
-        return Ridge(fit_intercept=False)
-    if method == "lasso":
-        lasso = {"n_alphas": 20, "tol": 1e-6, "max_iter": 2000, **options.get("lasso", {})}
-        return Lasso(fit_intercept=False, **lasso)
-    if method == "stepwise":
-        return Stepwise(fit_intercept=False, **options.get("stepwise", {}))
-    if method == "bjfa":
-        return BayesianJFA(fit_intercept=False, **bjfa)
+    if method not in _ESTIMATORS:
+        raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    name, defaults = _ESTIMATORS[method]
+    kw = {"fit_intercept": False, **defaults, **options.get(method.split("-")[0], {})}
     if method == "bjfa-noise":
         if input_noise is None:
             raise ValueError("method 'bjfa-noise' needs input_noise (e.g. from regressor_noise)")
-        return BayesianJFA(fit_intercept=False, input_noise=input_noise, **bjfa)
-    raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+        kw["input_noise"] = input_noise
+    return make(name, **kw)
 
 
 def identify(
@@ -222,7 +222,8 @@ def identify(
     options: Mapping | None = None,
     progress: bool = False,
 ) -> dict[str, Identified]:
-    """Fit every method on the fold moments and project each estimate (see the module).
+    """Fit every method on the fold moments and project each estimate (see the module):
+    `torchjfa.pipeline.estimate` and `torchjfa.pipeline.project_estimate` per method.
 
     Args:
         model: the robot model (the parameter layout).
@@ -249,21 +250,17 @@ def identify(
     with progress_bar(total=len(methods), desc="identify", enabled=progress) as bar:
         for method in methods:
             est = _estimator(method, input_noise, options)
+            given = input_noise if method == "bjfa-noise" else None
             start = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                est.fit_moments(folds)  # non-convergence is reported, not raised
+                # non-convergence is reported, not raised
+                fit = estimate(est, total, folds, input_noise=given)
             fit_s = time.perf_counter() - start
-            noise = {"bjfa": getattr(est, "noise_x_", None), "bjfa-noise": input_noise}.get(method)
             start = time.perf_counter()
-            proj = project(
-                est.coef_,
-                layout=model,
-                moments=total,
-                input_noise=noise,
-                parametrization="virtual",
-                **options.get("project", {}),
-            )
+            proj = project_estimate(
+                model, fit, total, parametrization="virtual", options=options.get("project")
+            ).projection
             out[method] = Identified(
                 method=method,
                 theta_hat=est.coef_.detach().clone(),
@@ -325,7 +322,7 @@ def evaluate_control(
 
 def _nmse(Y: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor) -> float:
     """Mean over joints of MSE_j / var(tau_j); ``Y (n, n_dof, p)``, ``tau (n, n_dof)``."""
-    return float(torque_errors(tau, Y @ theta)[0].mean())
+    return float(nmse(Y @ theta, tau))
 
 
 def run_robot(
@@ -395,8 +392,8 @@ def run_robot(
     test = generate_log(robot, n_samples=n_test, trajectory=test_traj, seed=seed + 1000, **kw)
     lap("simulate")
     model = RigidBodyModel.from_mjcf(model_path(robot))
-    perm = [log.joint_names.index(j) for j in model.joint_names]
-    sig = [getattr(log, k)[:, perm] for k in _SIGNALS[signals]]
+    log, test = log.reorder(model.joint_names), test.reorder(model.joint_names)
+    sig = [getattr(log, k) for k in _SIGNALS[signals]]
     weights = None
     if weighting == "residual":
         arrays = dict(zip(("q", "qd", "qdd", "tau"), sig, strict=True))
@@ -422,9 +419,8 @@ def run_robot(
     lap("identify")
     thetas = {m: found[m].theta for m in methods}
     thetas[REFERENCE] = true_theta(model, robot)
-    tperm = [test.joint_names.index(j) for j in model.joint_names]
-    clean = [getattr(test, k)[:, tperm] for k in _SIGNALS["true"]]
-    meas = [getattr(test, k)[:, tperm] for k in _SIGNALS["measured"]]
+    clean = [getattr(test, k) for k in _SIGNALS["true"]]
+    meas = [getattr(test, k) for k in _SIGNALS["measured"]]
     Y_clean, Y_meas = model.regressor(*clean[:3]), model.regressor(*meas[:3])
     lap("nmse")
     ctrl = {}

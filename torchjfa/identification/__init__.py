@@ -15,7 +15,6 @@ each taking the previous one's output:
 
 from ._identify import Identification as Identification
 from ._identify import identify as identify
-from ._options import ESTIMATOR_NAMES as ESTIMATOR_NAMES
 from ._options import JOINT_TERMS as JOINT_TERMS
 from ._options import Compute as Compute
 from ._options import IdentificationError as IdentificationError

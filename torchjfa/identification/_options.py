@@ -13,12 +13,9 @@ __all__ = [
     "Options",
     "IdentificationError",
     "IdentificationWarning",
-    "ESTIMATOR_NAMES",
     "JOINT_TERMS",
 ]
 
-#: the estimators `Options.estimator` names (`torchjfa.estimators.make`)
-ESTIMATOR_NAMES = ("bayes-jfa", "jfa", "ols", "ridge", "tls", "pls", "lasso", "stepwise")
 #: the joint terms `Options.friction` takes: friction, and the motor's reflected inertia
 JOINT_TERMS = ("viscous", "coulomb", "offset", "armature")
 
@@ -87,7 +84,8 @@ class Options:
             given), with a gap of the filter's reach between the parts.
 
     Estimation:
-        estimator: a name of `ESTIMATOR_NAMES` (`torchjfa.estimators.make`) or an estimator
+        estimator: a name of `torchjfa.estimators.available` (`torchjfa.estimators.make`: the
+            library's and any registered one) or an estimator
             with ``fit_intercept=False``, used as it is.
         estimator_options: keywords of the named estimator (e.g. ``{"max_iter": 20000}``).
         weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
@@ -140,7 +138,9 @@ class Options:
         _choice("weighting", self.weighting, ("residual", "none"))
         _choice("parametrization", self.parametrization, ("log-cholesky", "virtual"))
         if isinstance(self.estimator, str):
-            _choice("estimator", self.estimator, ESTIMATOR_NAMES)
+            from ..estimators import available
+
+            _choice("estimator", self.estimator, available())
         if isinstance(self.input_noise, str):
             _choice("input_noise", self.input_noise, ("auto", "learn", "periods"))
         if self.cutoff != "auto" and not 0 < float(self.cutoff) < float("inf"):

@@ -7,7 +7,6 @@ Each stage's output is the next one's input; each collects the warnings it has f
 
 from __future__ import annotations
 
-import inspect
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -32,7 +31,7 @@ from ..dynamics import RigidBodyModel
 from ..pipeline import IdentificationResult, noise_vector, residual_joint_weights
 from ..pipeline import identify as _identify
 from ..report import IdentificationReport, make_report
-from ._options import ESTIMATOR_NAMES, IdentificationError, Options
+from ._options import IdentificationError, Options
 
 __all__ = [
     "RawLog",
@@ -343,33 +342,16 @@ def cap_period_noise(model: RigidBodyModel, pnoise) -> tuple[object, list[str]]:
 # ------------------------------------------------------------------------------ fit
 def make_estimator(options: Options, input_noise: torch.Tensor | None = None):
     """``options.estimator``: made by name (`torchjfa.estimators.make`, no intercept, with
-    ``options.estimator_options`` and, for an estimator that takes one, the input noise), or
-    the estimator given, as it is."""
+    ``options.estimator_options`` and, for an estimator that takes one
+    (`torchjfa.estimators.takes`), the input noise), or the estimator given, as it is."""
+    from .. import estimators
+
     if not isinstance(options.estimator, str):
         return options.estimator
-    if options.estimator not in ESTIMATOR_NAMES:
-        raise IdentificationError(f"unknown estimator {options.estimator!r}")
     kw = {"fit_intercept": False, **dict(options.estimator_options)}
-    estimator = _make(options.estimator, **kw)
-    if input_noise is not None and "input_noise" in inspect.signature(type(estimator)).parameters:
-        estimator = _make(options.estimator, input_noise=input_noise, **kw)
-    return estimator
-
-
-def _make(name: str, **kw):  # TODO(lead): torchjfa.estimators.make once it lands
-    from .. import estimators as E
-
-    classes = {
-        "bayes-jfa": E.BayesianJFA,
-        "jfa": E.JFA,
-        "ols": E.OLS,
-        "ridge": E.Ridge,
-        "tls": E.TLS,
-        "pls": E.PLS,
-        "lasso": E.Lasso,
-        "stepwise": E.Stepwise,
-    }
-    return classes[name](**kw)
+    if input_noise is not None and estimators.takes(options.estimator, "input_noise"):
+        kw["input_noise"] = input_noise
+    return estimators.make(options.estimator, **kw)
 
 
 def fit(
