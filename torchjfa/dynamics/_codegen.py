@@ -165,13 +165,31 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
 
     Reads ``q``, ``qd``, ``qdd``, ``sn`` (sin q) and ``cs`` (cos q) through ``em.load``.
     """
-    n = len(tree.parent)
     per = 10 + len(friction)
-    revolute = [t == "revolute" for t in tree.joint_types]
+    entries = _pair_entries(tree, _forward(tree, em), per, em)
+    for k in range(len(tree.parent)):
+        for f, kind in enumerate(friction):
+            entries[(k, k * per + 10 + f)] = {
+                "viscous": ("qd", k),
+                "coulomb": ("sign", k),
+                "armature": ("qdd", k),
+                "offset": 1.0,
+            }[kind]
+    return entries
+
+
+def _forward(tree: KinematicTree, em: _Emitter) -> dict[str, list]:
+    """Emit the world-frame kinematics of every body (`_rnea`'s forward pass), joint by joint.
+
+    Returns:
+        Lists over joints: ``R`` body-to-world rotation, ``pos`` body origin, ``z`` joint axis,
+        ``m`` the axis' moment about the world origin (revolute joints), and the body's spatial
+        velocity (``w``, ``v``) and acceleration (``dw``, ``dv``) at the world origin.
+    """
+    n = len(tree.parent)
     zero3 = (0.0, 0.0, 0.0)
     ident = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     minus_g = tuple(-x for x in _cvec(tree.gravity))
-    u_all = [_cvec(u) for u in tree.axis]
     ap_all = [_cvec(a) for a in tree.axis_point]
     R, pos, z, m, w, v, dw, dv = ([None] * n for _ in range(8))
     for k in range(n):
@@ -185,7 +203,7 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
         zk = em.mv(Rp, _cvec(F @ u))  # the joint axis, world frame
         z[k] = zk
         qdk, qddk = em.load("qd", k), em.load("qdd", k)
-        if revolute[k]:
+        if tree.joint_types[k] == "revolute":
             # F @ Rot(u, q) = F u u^T + cos q F (1 - u u^T) + sin q F [u]x   (Rodrigues)
             uu = np.outer(u, u)
             K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
@@ -215,9 +233,28 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             w[k], dw[k] = wp, dwp
             v[k] = em.vadd(vp, zq)
             dv[k] = em.vadd(dvp, em.vscale(zk, qddk), em.cross(wp, zq))
+    return {"R": R, "pos": pos, "z": z, "m": m, "w": w, "v": v, "dw": dw, "dv": dv}
+
+
+def _pair_entries(tree: KinematicTree, kin: dict[str, list], per: int, em: _Emitter) -> dict:
+    """Emit the 10 inertial columns of every (ancestor joint j, body i) pair.
+
+    Args:
+        kin: `_forward`'s lists.
+        per: parameters per joint (10 + the friction terms).
+
+    Returns:
+        ``{(row j, column): value}``.
+    """
+    revolute = [t == "revolute" for t in tree.joint_types]
+    zero3 = (0.0, 0.0, 0.0)
+    u_all = [_cvec(u) for u in tree.axis]
+    ap_all = [_cvec(a) for a in tree.axis_point]
+    R, pos, z, m = kin["R"], kin["pos"], kin["z"], kin["m"]
+    w, v, dw, dv = kin["w"], kin["v"], kin["dw"], kin["dv"]
     ancestors = tree.ancestors()
     entries = {}
-    for i in range(n):
+    for i in range(len(tree.parent)):
         Ri, pi = R[i], pos[i]
         vo = em.vadd(v[i], em.cross(w[i], pi))  # velocity of the body origin
         acc = em.vadd(dv[i], em.cross(dw[i], pi), em.cross(w[i], vo))  # its acceleration, -g in
@@ -252,14 +289,6 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             )
             for col, val in enumerate(cols):
                 entries[(j, i * per + col)] = val
-    for k in range(n):
-        for f, kind in enumerate(friction):
-            entries[(k, k * per + 10 + f)] = {
-                "viscous": ("qd", k),
-                "coulomb": ("sign", k),
-                "armature": ("qdd", k),
-                "offset": 1.0,
-            }[kind]
     return entries
 
 
