@@ -27,7 +27,7 @@ import torch
 
 import torchjfa
 from torchjfa import RigidBodyModel
-from torchjfa.dynamics._rnea import regressor_fast
+from torchjfa.dynamics._rnea_fast import regressor_fast
 
 
 def _burn(stop) -> None:

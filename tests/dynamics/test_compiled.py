@@ -9,7 +9,7 @@ import pytest
 import torch
 from dyn_robots import ROBOTS, mujoco_inverse, mujoco_model, random_state
 
-import torchjfa.dynamics._codegen as codegen
+import torchjfa.dynamics._kernel as kernel_module
 from torchjfa.dynamics import RigidBodyModel
 
 TOL = {torch.float64: 1e-12, torch.float32: 1e-4}
@@ -17,7 +17,7 @@ TOL = {torch.float64: 1e-12, torch.float32: 1e-4}
 
 def _has_compiler() -> bool:
     try:
-        codegen._compiler()
+        kernel_module._compiler()
     except RuntimeError:
         return False
     return True
@@ -173,7 +173,7 @@ def test_compile_regressor_cache_and_pickle():
 
 
 def test_no_compiler_raises(monkeypatch):
-    monkeypatch.setattr(codegen.shutil, "which", lambda name: None)
+    monkeypatch.setattr(kernel_module.shutil, "which", lambda name: None)
     model = _model("small_urdf")
     q, qd, qdd = random_state(model.n_dof, (2,), seed=7)
     with pytest.raises(RuntimeError, match="C\\+\\+ compiler"):
@@ -197,7 +197,7 @@ def test_default_is_the_kernel_and_a_fresh_build_says_so(tmp_path, monkeypatch, 
 
 
 def test_default_falls_back_to_the_torch_path_with_one_note(monkeypatch, notes):
-    monkeypatch.setattr(codegen.shutil, "which", lambda name: None)
+    monkeypatch.setattr(kernel_module.shutil, "which", lambda name: None)
     model = _model("small_urdf")
     q, qd, qdd = random_state(model.n_dof, (3,), seed=9)
     threads = torch.get_num_threads()

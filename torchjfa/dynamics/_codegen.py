@@ -14,11 +14,7 @@ The program is emitted as C++ over ``W``-sample vectors (GCC/Clang vector extens
 or 16 floats, one AVX-512 register), each block of ``W`` samples assembled in a tile of ``W``
 whole output rows (structural zeros included) and copied out row by row, so the batch-first
 output is written once, contiguously. Sines and cosines come from torch (``torch.sin``/``cos``,
-the same values as the eager path). The source is compiled with the system C++ compiler (``CXX``
-or ``g++``, ``-O2 -march=native``) into a shared library cached on disk under
-``$TORCHJFA_CACHE_DIR`` (default ``~/.cache/torchjfa``), keyed by the source, the compiler and
-the CPU, and called through ctypes; ctypes releases the GIL, so ``torch.get_num_threads()``
-threads each take a slice of the batch.
+the same values as the eager path). `torchjfa.dynamics._kernel` compiles, caches and calls it.
 
 Why not ``torch.compile``: inductor (torch 2.13, CPU) on the same folded program, measured on
 the Panda arm during development, split it into hundreds of loops (one per zero column of the
@@ -29,31 +25,18 @@ with the transpose into the ``(B, n, n_params)`` layout reached about Pinocchio'
 
 from __future__ import annotations
 
-import ctypes
-import hashlib
 import math
-import os
-import platform
-import shutil
-import subprocess
-import tempfile
-import threading
-import time
-from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from .._notes import note
 from ._tree import KinematicTree
 
-__all__ = ["RegressorKernel", "kernel_source", "build_kernel"]
+__all__ = ["kernel_source", "LANES"]
 
 _SNAP = 1e-14
-_LANES = {torch.float64: 8, torch.float32: 16}
+LANES = {torch.float64: 8, torch.float32: 16}  # samples per C++ vector, one AVX-512 register
 _CTYPES = {torch.float64: "double", torch.float32: "float"}
-_MIN_PER_THREAD = 2048  # samples; below this one thread does the whole batch
 
 
 # ----------------------------------------------------------------------------- scalar algebra
@@ -182,13 +165,31 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
 
     Reads ``q``, ``qd``, ``qdd``, ``sn`` (sin q) and ``cs`` (cos q) through ``em.load``.
     """
-    n = len(tree.parent)
     per = 10 + len(friction)
-    revolute = [t == "revolute" for t in tree.joint_types]
+    entries = _pair_entries(tree, _forward(tree, em), per, em)
+    for k in range(len(tree.parent)):
+        for f, kind in enumerate(friction):
+            entries[(k, k * per + 10 + f)] = {
+                "viscous": ("qd", k),
+                "coulomb": ("sign", k),
+                "armature": ("qdd", k),
+                "offset": 1.0,
+            }[kind]
+    return entries
+
+
+def _forward(tree: KinematicTree, em: _Emitter) -> dict[str, list]:
+    """Emit the world-frame kinematics of every body (`_rnea`'s forward pass), joint by joint.
+
+    Returns:
+        Lists over joints: ``R`` body-to-world rotation, ``pos`` body origin, ``z`` joint axis,
+        ``m`` the axis' moment about the world origin (revolute joints), and the body's spatial
+        velocity (``w``, ``v``) and acceleration (``dw``, ``dv``) at the world origin.
+    """
+    n = len(tree.parent)
     zero3 = (0.0, 0.0, 0.0)
     ident = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     minus_g = tuple(-x for x in _cvec(tree.gravity))
-    u_all = [_cvec(u) for u in tree.axis]
     ap_all = [_cvec(a) for a in tree.axis_point]
     R, pos, z, m, w, v, dw, dv = ([None] * n for _ in range(8))
     for k in range(n):
@@ -202,7 +203,7 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
         zk = em.mv(Rp, _cvec(F @ u))  # the joint axis, world frame
         z[k] = zk
         qdk, qddk = em.load("qd", k), em.load("qdd", k)
-        if revolute[k]:
+        if tree.joint_types[k] == "revolute":
             # F @ Rot(u, q) = F u u^T + cos q F (1 - u u^T) + sin q F [u]x   (Rodrigues)
             uu = np.outer(u, u)
             K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
@@ -232,9 +233,28 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             w[k], dw[k] = wp, dwp
             v[k] = em.vadd(vp, zq)
             dv[k] = em.vadd(dvp, em.vscale(zk, qddk), em.cross(wp, zq))
+    return {"R": R, "pos": pos, "z": z, "m": m, "w": w, "v": v, "dw": dw, "dv": dv}
+
+
+def _pair_entries(tree: KinematicTree, kin: dict[str, list], per: int, em: _Emitter) -> dict:
+    """Emit the 10 inertial columns of every (ancestor joint j, body i) pair.
+
+    Args:
+        kin: `_forward`'s lists.
+        per: parameters per joint (10 + the friction terms).
+
+    Returns:
+        ``{(row j, column): value}``.
+    """
+    revolute = [t == "revolute" for t in tree.joint_types]
+    zero3 = (0.0, 0.0, 0.0)
+    u_all = [_cvec(u) for u in tree.axis]
+    ap_all = [_cvec(a) for a in tree.axis_point]
+    R, pos, z, m = kin["R"], kin["pos"], kin["z"], kin["m"]
+    w, v, dw, dv = kin["w"], kin["v"], kin["dw"], kin["dv"]
     ancestors = tree.ancestors()
     entries = {}
-    for i in range(n):
+    for i in range(len(tree.parent)):
         Ri, pi = R[i], pos[i]
         vo = em.vadd(v[i], em.cross(w[i], pi))  # velocity of the body origin
         acc = em.vadd(dv[i], em.cross(dw[i], pi), em.cross(w[i], vo))  # its acceleration, -g in
@@ -269,14 +289,6 @@ def _program(tree: KinematicTree, friction: tuple[str, ...], em: _Emitter) -> di
             )
             for col, val in enumerate(cols):
                 entries[(j, i * per + col)] = val
-    for k in range(n):
-        for f, kind in enumerate(friction):
-            entries[(k, k * per + 10 + f)] = {
-                "viscous": ("qd", k),
-                "coulomb": ("sign", k),
-                "armature": ("qdd", k),
-                "offset": 1.0,
-            }[kind]
     return entries
 
 
@@ -287,7 +299,7 @@ def kernel_source(tree: KinematicTree, friction: tuple[str, ...], dtype: torch.d
     (``sn``, ``cs`` the sine and cosine of q), ``out`` the ``(B, n, n * per)`` regressor, every
     entry written.
     """
-    if dtype not in _LANES:
+    if dtype not in LANES:
         raise ValueError(f"the compiled regressor supports float64 and float32, got {dtype}")
     em = _Emitter(dtype)
     entries = _program(tree, tuple(friction), em)
@@ -307,7 +319,7 @@ def kernel_source(tree: KinematicTree, friction: tuple[str, ...], dtype: torch.d
             consts.append(f"for (int l = 0; l < W; ++l) tile[l][{idx}] = {em.lit(val)};")
     body = "\n    ".join(em.lines + stores)
     init = "\n    ".join(consts)
-    T, W = _CTYPES[dtype], _LANES[dtype]
+    T, W = _CTYPES[dtype], LANES[dtype]
     return f"""// torchjfa: generated regressor kernel ({n} joints, friction {tuple(friction)}, {T})
 #include <cstdint>
 #include <cstring>
@@ -350,165 +362,3 @@ extern "C" void regressor(const T* q, const T* qd, const T* qdd, const T* sn, co
     delete[] tile;
 }}
 """
-
-
-# ----------------------------------------------------------------------------- building
-_BUILD_LOCK = threading.Lock()
-
-
-def cache_dir() -> Path:
-    """Where compiled kernels are kept: ``$TORCHJFA_CACHE_DIR`` or ``~/.cache/torchjfa``."""
-    env = os.environ.get("TORCHJFA_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "torchjfa"
-
-
-def _compiler() -> str:
-    for cand in (os.environ.get("CXX"), "g++", "c++", "clang++"):
-        if cand and shutil.which(cand):
-            return cand
-    raise RuntimeError(
-        "compiled=True needs a C++ compiler (set CXX, or install g++): none of CXX, g++, c++, "
-        "clang++ is on PATH; use compiled=False (the torch path)"
-    )
-
-
-def _cpu_signature() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith(("flags", "Features")):
-                    return line
-    except OSError:
-        pass
-    return platform.processor() + platform.machine()
-
-
-def _run(cmd: list[str]) -> subprocess.CompletedProcess:
-    return subprocess.run(cmd, capture_output=True, text=True, check=False)
-
-
-def _compile(source: str) -> tuple[Path, bool]:
-    """Compile ``source`` to a shared library (cached); returns its path and whether cached."""
-    cxx = _compiler()
-    version = _run([cxx, "--version"]).stdout.splitlines()[:1]
-    flag_sets = (["-O2", "-march=native"], ["-O2"])
-    key = hashlib.sha256(
-        "\n".join([source, cxx, *version, repr(flag_sets), _cpu_signature()]).encode()
-    ).hexdigest()[:24]
-    folder = cache_dir()
-    lib = folder / f"regressor_{key}.so"
-    if lib.is_file():
-        return lib, True
-    note(
-        f"compiling the regressor kernel for this robot with {cxx} (a few seconds, once per "
-        f"robot, dtype and machine; cached in {folder})"
-    )
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:  # an unwritable cache: build in a fresh temporary folder instead
-        folder = Path(tempfile.mkdtemp(prefix="torchjfa-kernels-"))
-        lib = folder / lib.name
-    with tempfile.TemporaryDirectory(dir=folder) as tmp:
-        cpp = Path(tmp) / "kernel.cpp"
-        cpp.write_text(source, encoding="utf-8")
-        out = Path(tmp) / "kernel.so"
-        errors = []
-        for flags in flag_sets:
-            res = _run([cxx, *flags, "-shared", "-fPIC", "-std=c++14", "-o", str(out), str(cpp)])
-            if res.returncode == 0:
-                break
-            errors.append(f"{' '.join([cxx, *flags])}: {res.stderr.strip()[-2000:]}")
-        else:
-            raise RuntimeError(
-                "compiling the regressor kernel failed; use compiled=False.\n" + "\n".join(errors)
-            )
-        os.replace(out, lib)  # atomic: concurrent builders write the same bytes
-    return lib, False
-
-
-# ----------------------------------------------------------------------------- the kernel
-_POOL: ThreadPoolExecutor | None = None
-_POOL_SIZE = 0
-
-
-def _pool(threads: int) -> ThreadPoolExecutor:
-    global _POOL, _POOL_SIZE
-    with _BUILD_LOCK:
-        if _POOL is None or _POOL_SIZE < threads:
-            if _POOL is not None:
-                _POOL.shutdown(wait=True)
-            _POOL, _POOL_SIZE = ThreadPoolExecutor(threads, "torchjfa-regressor"), threads
-        return _POOL
-
-
-class RegressorKernel:
-    """A compiled regressor for one robot, friction layout and dtype (CPU).
-
-    Attributes:
-        dtype: torch.float64 or torch.float32.
-        build_seconds: wall time to generate and compile (or load from the disk cache).
-        from_cache: True when the shared library was found in `cache_dir`.
-        path: the shared library.
-    """
-
-    def __init__(self, tree: KinematicTree, friction: tuple[str, ...], dtype: torch.dtype):
-        t0 = time.perf_counter()
-        self.dtype = dtype
-        self.n = len(tree.parent)
-        self.ncol = self.n * self.n * (10 + len(friction))
-        with _BUILD_LOCK:
-            self.path, self.from_cache = _compile(kernel_source(tree, friction, dtype))
-        self._load()
-        self.build_seconds = time.perf_counter() - t0
-
-    def _load(self) -> None:
-        self._lib = ctypes.CDLL(str(self.path))
-        fn = self._lib.regressor
-        fn.restype = None
-        fn.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_int64]
-        self._fn = fn
-
-    def __getstate__(self) -> dict:  # copy/pickle: the library is loaded again from its path
-        state = dict(self.__dict__)
-        del state["_lib"], state["_fn"]
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._load()
-
-    def __call__(
-        self, out: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor
-    ) -> torch.Tensor:
-        """Fill ``out`` ``(B, n, n_params)`` (contiguous, CPU, `dtype`) from ``(B, n)`` states."""
-        B = q.shape[0]
-        q, qd, qdd = (v.contiguous() for v in (q, qd, qdd))
-        with torch.no_grad():
-            sn, cs = torch.sin(q), torch.cos(q)
-        arrays = (q, qd, qdd, sn, cs, out)
-        size = q.element_size()
-        rows = (self.n,) * 5 + (self.ncol,)
-        threads = max(1, min(torch.get_num_threads(), B // _MIN_PER_THREAD))
-        if threads == 1:
-            self._fn(*(a.data_ptr() for a in arrays), B)
-            return out
-        step = -(-B // threads)
-        step += -step % _LANES[self.dtype]
-
-        def part(s0: int) -> None:
-            cnt = min(B, s0 + step) - s0
-            self._fn(
-                *(a.data_ptr() + s0 * r * size for a, r in zip(arrays, rows, strict=True)), cnt
-            )
-
-        for f in [_pool(threads).submit(part, s0) for s0 in range(0, B, step)]:
-            f.result()
-        return out
-
-
-def build_kernel(tree: KinematicTree, friction: tuple[str, ...], dtype) -> RegressorKernel:
-    """Generate, compile (or load from the disk cache) and load the kernel."""
-    return RegressorKernel(tree, tuple(friction), dtype)

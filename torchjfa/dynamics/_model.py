@@ -19,25 +19,20 @@ import torch
 from .._notes import note
 from .._progress import progress_bar
 from .._threads import single_thread
-from .._validation import as_tensor, check_finite
+from .._validation import as_tensor
 from ..stats import Moments
-from ._codegen import RegressorKernel
+from ._inputs import check_chunk, check_out, check_state, new_output
+from ._kernel import RegressorKernel
+from ._mjcf import tree_from_mjcf
 from ._parameters import ParameterLayout, friction_kinds, inertial_from_vector, inertial_vector
-from ._rnea import TreeConstants, regressor_fast, regressor_into
-from ._tree import (
-    KinematicTree,
-    describe_source,
-    read_description,
-    tree_from_mjcf,
-    tree_from_urdf,
-)
+from ._rnea import TreeConstants, regressor_into
+from ._rnea_fast import regressor_fast
+from ._tree import KinematicTree, describe_source, read_description, tree_from_urdf
 from ._urdf import fix_urdf_joints
 
 __all__ = ["RigidBodyModel", "BodyInertial"]
 
 _DEFAULT_CHUNK = 1024
-_NUMPY_ALLOC_MIN = 1 << 20  # elements
-_NP_DTYPES = {torch.float64: np.float64, torch.float32: np.float32}
 _COMPILED_DTYPES = (torch.float64, torch.float32)
 
 
@@ -228,65 +223,11 @@ class RigidBodyModel:
     def _consts(self, dtype: torch.dtype, device: torch.device) -> TreeConstants:
         key = (dtype, device)
         if key not in self._constants:
-            t = self._tree
-            kw = {"dtype": dtype, "device": device}
-            axis = torch.as_tensor(t.axis, **kw)
-            rot = torch.as_tensor(t.rot_fixed, **kw)
-            point = torch.as_tensor(t.axis_point, **kw)
-            ax64 = torch.as_tensor(t.axis, dtype=torch.float64)
-            x, y, z = ax64.unbind(-1)
-            o = torch.zeros_like(x)
-            K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(-1, 3, 3)
-            ancestors = t.ancestors()
-            pos_point = t.pos_fixed + np.einsum("nij,nj->ni", t.rot_fixed, t.axis_point)
-            self._constants[key] = TreeConstants(
-                parent=tuple(t.parent),
-                revolute=tuple(jt == "revolute" for jt in t.joint_types),
-                has_point=tuple(bool(np.any(p != 0.0)) for p in t.axis_point),
-                ancestors=ancestors,
-                rot_fixed=rot,
-                pos_fixed=torch.as_tensor(t.pos_fixed, **kw),
-                axis=axis,
-                axis_point=point,
-                pos_point=torch.as_tensor(pos_point, **kw),
-                skew_axis=K.to(**kw),
-                skew_axis2=(K @ K).to(**kw),
-                gravity=torch.as_tensor(t.gravity, **kw),
-                pairs=(
-                    torch.tensor([j for a in ancestors for j in a], device=device),
-                    torch.tensor([i for i, a in enumerate(ancestors) for _ in a], device=device),
-                ),
-            )
+            self._constants[key] = TreeConstants.from_tree(self._tree, dtype, device)
         return self._constants[key]
 
-    def _check_state(self, q, qd, qdd, tau=None):
-        names = ("q", "qd", "qdd", "tau")
-        vals = [as_tensor(v, name=n) for v, n in zip((q, qd, qdd, tau), names, strict=False)]
-        if tau is None:
-            vals = vals[:3]
-        shape = vals[0].shape
-        if len(shape) == 0 or shape[-1] != self.n_dof:
-            raise ValueError(
-                f"q must have shape (*batch, {self.n_dof}) (one column per joint of "
-                f"{self.joint_names}), got {tuple(shape)}"
-            )
-        for v, n in zip(vals[1:], names[1:], strict=False):
-            if v.shape != shape:
-                raise ValueError(
-                    f"{n} must have the same shape as q {tuple(shape)}, got {tuple(v.shape)}"
-                )
-            if v.device != vals[0].device:
-                raise ValueError(f"{n} is on {v.device}, q on {vals[0].device}; use one device")
-        dtype = vals[0].dtype
-        for v in vals[1:]:
-            dtype = torch.promote_types(dtype, v.dtype)
-        vals = [v.to(dtype) for v in vals]
-        for v, n in zip(vals, names, strict=False):
-            if not v.requires_grad:
-                check_finite(v, n)
-            elif not bool(torch.isfinite(v.detach()).all()):
-                check_finite(v.detach(), n)
-        return vals
+    def _check_state(self, q, qd, qdd, tau=None) -> list[torch.Tensor]:
+        return check_state(q, qd, qdd, tau, joint_names=self.joint_names)
 
     def regressor(
         self,
@@ -349,13 +290,13 @@ class RigidBodyModel:
         grad = torch.is_grad_enabled() and any(v.requires_grad for v in (q2, qd2, qdd2))
         shape = (*batch, n, self.n_params)
         if out is not None:
-            _check_out(out, shape, q2, grad)
+            check_out(out, shape, q2, grad)
         if grad:
             Y = q2.new_zeros(B, n, self.n_params)
             regressor_into(Y, q2, qd2, qdd2, c, self.friction)
             return Y.reshape(shape)
-        step = _DEFAULT_CHUNK if chunk_size is None else _check_chunk(chunk_size)
-        Y = _new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
+        step = _DEFAULT_CHUNK if chunk_size is None else check_chunk(chunk_size)
+        Y = new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
         kernel = None
         if compiled is not False and q2.device.type == "cpu" and q2.dtype in _COMPILED_DTYPES:
             kernel = self._kernel(q2.dtype, required=bool(compiled))
@@ -426,7 +367,7 @@ class RigidBodyModel:
             rows ordered sample by sample, joint by joint within a sample.
         """
         q, qd, qdd, tau = self._check_state(q, qd, qdd, tau)
-        step = _check_chunk(chunk_size)
+        step = check_chunk(chunk_size)
         n = self.n_dof
         q2, qd2, qdd2, tau2 = (v.reshape(-1, n) for v in (q, qd, qdd, tau))
         for s in range(0, q2.shape[0], step):
@@ -541,35 +482,3 @@ class RigidBodyModel:
         from ._writeback import write_mjcf
 
         write_mjcf(self, self._check_theta(theta), path)
-
-
-def _new_output(like: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
-    """An uninitialised tensor for a regressor; large CPU ones are allocated by numpy.
-
-    numpy asks the kernel for transparent huge pages on large arrays (``madvise``); first
-    touching a 4 kB-paged output of hundreds of MB costs more than computing it.
-    """
-    numel = int(np.prod(shape))
-    if like.device.type == "cpu" and like.dtype in _NP_DTYPES and numel >= _NUMPY_ALLOC_MIN:
-        return torch.from_numpy(np.empty(shape, dtype=_NP_DTYPES[like.dtype]))
-    return like.new_empty(shape)
-
-
-def _check_out(out, shape, like: torch.Tensor, grad: bool) -> None:
-    if not isinstance(out, torch.Tensor):
-        raise TypeError(f"out must be a torch.Tensor, got {type(out).__name__}")
-    if grad or out.requires_grad:
-        raise ValueError("out= cannot be used when an input or out requires grad")
-    if tuple(out.shape) != tuple(shape) or out.dtype != like.dtype or out.device != like.device:
-        raise ValueError(
-            f"out must have shape {tuple(shape)}, dtype {like.dtype} and device {like.device}, "
-            f"got {tuple(out.shape)}, {out.dtype}, {out.device}"
-        )
-    if not out.is_contiguous():
-        raise ValueError("out must be contiguous")
-
-
-def _check_chunk(chunk_size) -> int:
-    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
-        raise ValueError(f"chunk_size must be a positive int, got {chunk_size!r}")
-    return chunk_size

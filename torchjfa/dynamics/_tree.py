@@ -22,8 +22,9 @@ the nearest ancestor moved by a joint; frames fixed to the root are dropped (the
 A URDF's structure is checked first (`torchjfa.dynamics._urdf`: one tree, defined links, no
 loops, no mimic joints) and pytorch-kinematics builds its chain from a minimal, quiet copy;
 an MJCF with active ``<equality>`` constraints (coupled joints, closed loops) is refused. Files
-and bytes are decoded as their XML declaration says. Use `RigidBodyModel` rather than this
-module; it is the public face of the tree.
+and bytes are decoded as their XML declaration says. This module reads URDF and holds what both
+formats share (the tree, its maths, the lumping); `torchjfa.dynamics._mjcf` reads MJCF. Use
+`RigidBodyModel` rather than these modules; it is the public face of the tree.
 """
 
 from __future__ import annotations
@@ -39,9 +40,9 @@ from ._urdf import check_urdf, decode_xml, parse_urdf, pk_chain_from_urdf
 __all__ = [
     "KinematicTree",
     "tree_from_urdf",
-    "tree_from_mjcf",
     "read_description",
     "describe_source",
+    "lump",
 ]
 
 _URDF_JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
@@ -187,7 +188,7 @@ def describe_source(kind: str, path: str | None) -> str:
 
 
 @dataclass
-class _Frame:
+class Frame:
     """One frame of the description: a URDF link or an MJCF body."""
 
     name: str
@@ -252,7 +253,7 @@ def _urdf_inertial(link: ET.Element) -> np.ndarray:
     return inertial_np(mass, com, rot @ inertia @ rot.T)
 
 
-def _pk_children(frame) -> list:
+def pk_children(frame) -> list:
     return list(frame.children)
 
 
@@ -271,17 +272,17 @@ def tree_from_urdf(text: str, gravity, where: str = "URDF string") -> tuple[Kine
     links, joints = check_urdf(root, where)
     chain = pk_chain_from_urdf(links, joints, where)
 
-    frames: list[_Frame] = []
+    frames: list[Frame] = []
 
     def visit(pk_frame, parent: int) -> None:
         link_name = pk_frame.link.name
         if parent < 0:
-            rec = _Frame(link_name, -1, np.eye(3), np.zeros(3))
+            rec = Frame(link_name, -1, np.eye(3), np.zeros(3))
         else:
             jname = pk_frame.joint.name
             j = joints[jname]
             rot, pos = _origin(j.find("origin"), f"joint {jname!r}")
-            rec = _Frame(link_name, parent, rot, pos)
+            rec = Frame(link_name, parent, rot, pos)
             if j.get("type") != "fixed":
                 axis_el = j.find("axis")
                 axis = _floats(
@@ -301,172 +302,18 @@ def tree_from_urdf(text: str, gravity, where: str = "URDF string") -> tuple[Kine
         rec.inertial = _urdf_inertial(links[link_name])
         frames.append(rec)
         me = len(frames) - 1
-        for child in _pk_children(pk_frame):
+        for child in pk_children(pk_frame):
             visit(child, me)
 
     try:
         visit(chain._root, -1)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
-    return _lump(frames, chain, gravity), chain
-
-
-def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree, object, object]:
-    """Parse MJCF (text, and its path for relative assets) into a tree, the pk chain and the
-    compiled ``MjModel``."""
-    import mujoco
-
-    try:
-        model = (
-            mujoco.MjModel.from_xml_path(path)
-            if path is not None
-            else mujoco.MjModel.from_xml_string(text)
-        )
-    except ValueError as exc:
-        raise ValueError(f"MuJoCo cannot compile this MJCF: {exc}") from exc
-    for j in range(model.njnt):
-        jt = int(model.jnt_type[j])
-        if jt in (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)):
-            kind = "free" if jt == int(mujoco.mjtJoint.mjJNT_FREE) else "ball"
-            raise ValueError(
-                f"joint {model.joint(j).name!r} is a {kind} joint: floating bases and ball joints "
-                "are not supported; use hinge and slide joints on a fixed base"
-            )
-        if not model.joint(j).name:
-            raise ValueError(f"joint {j} has no name; every joint needs a unique name")
-    for b in range(1, model.nbody):
-        if model.body_jntnum[b] > 1:
-            raise ValueError(
-                f"body {model.body(b).name or b!r} has {model.body_jntnum[b]} joints; "
-                "one joint per body is supported (split it into nested bodies, one joint each)"
-            )
-    if model.njnt == 0:
-        raise ValueError("the MJCF has no joints; a model needs at least one moving joint")
-    active = [e for e in range(model.neq) if model.eq_active0[e]]
-    if active:
-        kinds = [
-            f"{mujoco.mjtEq(int(model.eq_type[e])).name[5:].lower()} "
-            + (repr(model.equality(e).name) if model.equality(e).name else f"#{e}")
-            for e in active
-        ]
-        raise ValueError(
-            f"the MJCF has {len(active)} active equality constraint(s) ({', '.join(kinds)}): "
-            "coupled joints (the MJCF form of a URDF mimic joint) and closed loops are not "
-            'supported; remove them from <equality> or mark them active="false"'
-        )
-    if gravity is None:
-        gravity = np.array(model.opt.gravity, dtype=np.float64)
-    chain = _pk_chain_from_mjcf(text, model)
-
-    frames: list[_Frame] = []
-
-    def visit(pk_frame, body: int, parent: int) -> None:
-        if body > 0:
-            rec = _Frame(
-                model.body(body).name,
-                parent,
-                quat_matrix(model.body_quat[body]),
-                np.array(model.body_pos[body], dtype=np.float64),
-            )
-        else:
-            rec = _Frame(model.body(0).name, -1, np.eye(3), np.zeros(3))
-        if pk_frame.link.name != rec.name:
-            raise ValueError(
-                f"pytorch-kinematics and MuJoCo disagree on the tree at body {rec.name!r}"
-            )
-        if body > 0 and model.body_jntnum[body] == 1:
-            j = int(model.body_jntadr[body])
-            rec.joint = model.joint(j).name
-            rec.joint_type = (
-                "revolute"
-                if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
-                else "prismatic"
-            )
-            rec.axis = np.array(model.jnt_axis[j], dtype=np.float64)
-            rec.axis_point = np.array(model.jnt_pos[j], dtype=np.float64)
-            if pk_frame.joint.name != rec.joint:
-                raise ValueError(f"pytorch-kinematics and MuJoCo disagree on joint {rec.joint!r}")
-        inertia_c = (
-            quat_matrix(model.body_iquat[body])
-            @ np.diag(model.body_inertia[body])
-            @ quat_matrix(model.body_iquat[body]).T
-        )
-        rec.inertial = inertial_np(float(model.body_mass[body]), model.body_ipos[body], inertia_c)
-        frames.append(rec)
-        me = len(frames) - 1
-        kids = [c for c in range(body + 1, model.nbody) if model.body_parentid[c] == body]
-        pk_kids = _pk_children(pk_frame)[: len(kids)]  # pk lists child bodies first, then sites
-        for child_frame, child in zip(pk_kids, kids, strict=True):
-            visit(child_frame, child, me)
-
-    visit(chain._root, 0, -1)
-    return _lump(frames, chain, gravity), chain, model
-
-
-def _pk_chain_from_mjcf(text: str, model):
-    """pytorch-kinematics' chain of an MJCF.
-
-    ``pk.build_chain_from_mjcf`` is used when it works. pytorch-kinematics 0.10 looks joint
-    types up with MuJoCo enum keys, which recent MuJoCo versions (4.x) no longer match with the
-    integers ``MjModel`` returns (a KeyError), and it recompiles from a string, which loses the
-    file's directory; in those cases the same chain is built here from the compiled model with
-    pk's own ``Frame``/``Link``/``Joint``/``Chain`` classes, as pk's builder does.
-    """
-    import mujoco
-    import pytorch_kinematics as pk
-    import pytorch_kinematics.transforms as tf
-
-    try:
-        return pk.build_chain_from_mjcf(text)
-    except (KeyError, ValueError):
-        pass
-    types = {
-        int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
-        int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic",
-    }
-
-    def frame_of(b: int):
-        body = model.body(b)
-        link = pk.frame.Link(body.name, offset=tf.Transform3d(rot=body.quat, pos=body.pos))
-        if model.body_jntnum[b] == 1:
-            j = model.joint(int(model.body_jntadr[b]))
-            joint = pk.frame.Joint(
-                j.name,
-                offset=tf.Transform3d(pos=j.pos),
-                axis=j.axis,
-                joint_type=types[int(j.type[0])],
-                limits=(j.range[0], j.range[1]),
-            )
-        else:
-            joint = pk.frame.Joint(body.name + "_fixed_joint")
-        fr = pk.frame.Frame(name=body.name, link=link, joint=joint)
-        kids = [c for c in range(b + 1, model.nbody) if model.body_parentid[c] == b]
-        fr.children = [frame_of(c) for c in kids]
-        for s in range(model.nsite):
-            if model.site_bodyid[s] == b:
-                site = model.site(s)
-                fr.children.append(
-                    pk.frame.Frame(
-                        name=site.name,
-                        link=pk.frame.Link(
-                            site.name, offset=tf.Transform3d(rot=site.quat, pos=site.pos)
-                        ),
-                    )
-                )
-        return fr
-
-    root = model.body(0)
-    root_frame = pk.frame.Frame(
-        root.name,
-        link=pk.frame.Link(root.name, offset=tf.Transform3d(rot=root.quat, pos=root.pos)),
-        joint=pk.frame.Joint(),
-    )
-    root_frame.children = frame_of(0).children
-    return pk.chain.Chain(root_frame)
+    return lump(frames, chain, gravity), chain
 
 
 # ----------------------------------------------------------------------------- lumping
-def _lump(frames: list[_Frame], chain, gravity) -> KinematicTree:
+def lump(frames: list[Frame], chain, gravity) -> KinematicTree:
     """Lump fixed frames into their moving ancestor and order the joints as pk does."""
     n_frames = len(frames)
     owner = [-1] * n_frames  # frame index of the moving frame that carries frame f

@@ -129,6 +129,15 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
             parent or child is not a defined link, a link that is the child of two joints, a
             kinematic loop, several root links, no moving joint, or a moving ``<mimic>`` joint.
     """
+    links = _links(root, where)
+    joints = _joints(root, links, where)
+    _check_one_tree(links, joints, where)
+    _check_moving(joints, where)
+    return links, joints
+
+
+def _links(root: ET.Element, where: str) -> dict[str, ET.Element]:
+    """The named ``<link>`` elements, in file order; each name once."""
     links: dict[str, ET.Element] = {}
     for link in root.findall("link"):
         name = link.get("name")
@@ -137,6 +146,11 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
         if name in links:
             raise ValueError(f"{where}: link {name!r} is defined twice; link names must be unique")
         links[name] = link
+    return links
+
+
+def _joints(root: ET.Element, links: dict[str, ET.Element], where: str) -> dict[str, ET.Element]:
+    """The named ``<joint>`` elements, in file order: supported types, defined links."""
     joints: dict[str, ET.Element] = {}
     for j in root.findall("joint"):
         name, jtype = j.get("name"), j.get("type")
@@ -168,7 +182,13 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
         raise ValueError(
             f"{where}: the URDF has no joints; a model needs at least one moving joint"
         )
+    return joints
 
+
+def _check_one_tree(
+    links: dict[str, ET.Element], joints: dict[str, ET.Element], where: str
+) -> None:
+    """Every link the child of at most one joint, one root link, no kinematic loop."""
     parent_of: dict[str, str] = {}  # child link -> joint
     for name, j in joints.items():
         child, parent = _link_of(j, "child", where), _link_of(j, "parent", where)
@@ -225,6 +245,9 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
             "closed loops are not supported"
         )
 
+
+def _check_moving(joints: dict[str, ET.Element], where: str) -> None:
+    """At least one moving joint, none of them a ``<mimic>`` joint."""
     moving = [n for n, j in joints.items() if j.get("type") in MOVING]
     if not moving:
         raise ValueError(
@@ -245,7 +268,6 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
             f"fixed_joints={lock!r} to hold them at q = 0 (their links are lumped into the "
             "parent), or delete the <mimic> elements to identify each as an independent joint"
         )
-    return links, joints
 
 
 def pk_chain_from_urdf(links: dict[str, ET.Element], joints: dict[str, ET.Element], where: str):

@@ -10,17 +10,17 @@ limits, the baseline. ``torchjfa excite`` is the command line; `FourierTrajector
 hands the result to `torchjfa.sim.generate_log`.
 """
 
-from ._design import CRITERIA as CRITERIA
 from ._design import ExcitationResult as ExcitationResult
-from ._design import base_directions as base_directions
-from ._design import criterion_value as criterion_value
-from ._design import information_matrix as information_matrix
 from ._design import optimize_excitation as optimize_excitation
 from ._design import random_excitation as random_excitation
-from ._design import trajectory_information as trajectory_information
 from ._fourier import FourierTrajectory as FourierTrajectory
 from ._fourier import constrain_coefficients as constrain_coefficients
 from ._fourier import fourier_states as fourier_states
+from ._information import CRITERIA as CRITERIA
+from ._information import base_directions as base_directions
+from ._information import criterion_value as criterion_value
+from ._information import information_matrix as information_matrix
+from ._information import trajectory_information as trajectory_information
 from ._limits import Limits as Limits
 from ._limits import WorkspaceBox as WorkspaceBox
 from ._limits import check_limits as check_limits

@@ -35,154 +35,22 @@ import numpy as np
 import torch
 
 from .._progress import progress_bar
-from .._validation import check_joint_weights
 from ..dynamics import RigidBodyModel
 from ..sim import SinusoidTrajectory, random_trajectory
 from ._fourier import FourierTrajectory, constrain_coefficients, fourier_states
+from ._information import (
+    CRITERIA,
+    base_directions,
+    criterion_value,
+    period_grid,
+    trajectory_information,
+    weighted_information,
+)
 from ._limits import Limits, _Kinematics, check_limits, constraint_violations
 
-__all__ = [
-    "CRITERIA",
-    "ExcitationResult",
-    "base_directions",
-    "information_matrix",
-    "criterion_value",
-    "trajectory_information",
-    "optimize_excitation",
-    "random_excitation",
-]
+__all__ = ["ExcitationResult", "optimize_excitation", "random_excitation"]
 
-CRITERIA = ("d", "condition", "e")
 _SAFETY = 0.02  # the optimiser aims 2% inside every limit so the fine-grid check holds
-
-
-def base_directions(
-    model: RigidBodyModel,
-    limits: Limits,
-    *,
-    n_samples: int | None = None,
-    joint_weights=None,
-    rtol: float = 1e-9,
-    generator: torch.Generator | None = None,
-) -> torch.Tensor:
-    """An orthonormal basis of the identifiable parameter directions.
-
-    The regressor at ``n_samples`` random states (positions uniform in the limits, velocities
-    and accelerations uniform in +-min(limit, 2 rad/s) and +-min(limit, 10 rad/s^2)) is
-    stacked and decomposed; right singular vectors with singular values above
-    ``rtol * s_max`` span what any motion can identify.
-
-    Args:
-        model, limits: the robot and its `Limits`.
-        n_samples: random states (default ``max(200, 4 * n_params)``).
-        joint_weights: ``(n_dof,)`` weights of each joint's equations (default 1).
-        rtol: relative rank tolerance.
-        generator: the random draws' `torch.Generator`.
-
-    Returns:
-        ``(n_params, r)`` float64 basis V.
-    """
-    n, P = model.n_dof, model.n_params
-    B = max(200, 4 * P) if n_samples is None else int(n_samples)
-    g = generator
-    kw = {"dtype": torch.float64}
-    lo = torch.as_tensor(limits.position_low, **kw)
-    hi = torch.as_tensor(limits.position_high, **kw)
-    vmax = torch.as_tensor(np.minimum(limits.velocity, 2.0), **kw)
-    amax = torch.as_tensor(np.minimum(limits.acceleration, 10.0), **kw)
-    q = lo + (hi - lo) * torch.rand(B, n, generator=g, **kw)
-    qd = vmax * (2 * torch.rand(B, n, generator=g, **kw) - 1)
-    qdd = amax * (2 * torch.rand(B, n, generator=g, **kw) - 1)
-    Y = model.regressor(q, qd, qdd) * _sqrt_weights(joint_weights, n)[:, None]
-    _, s, Vh = torch.linalg.svd(Y.reshape(-1, P), full_matrices=False)
-    r = int((s > rtol * s[0]).sum())
-    return Vh[:r].T.contiguous()
-
-
-def _sqrt_weights(joint_weights, n: int, like: torch.Tensor | None = None) -> torch.Tensor:
-    kw = {"dtype": torch.float64} if like is None else {"dtype": like.dtype, "device": like.device}
-    if joint_weights is None:
-        return torch.ones(n, **kw)
-    return check_joint_weights(joint_weights, n, positive=True, **kw).sqrt()
-
-
-def information_matrix(
-    model: RigidBodyModel, q, qd, qdd, basis: torch.Tensor, *, joint_weights=None
-) -> torch.Tensor:
-    """``M = V^T (1/N sum_i Y_i^T W Y_i) V``, ``(r, r)``, differentiable in the states.
-
-    Args:
-        model: the robot.
-        q, qd, qdd: ``(N, n_dof)`` states.
-        basis: ``(n_params, r)`` V from `base_directions`.
-        joint_weights: ``(n_dof,)`` W's diagonal (default 1).
-    """
-    return _information(model.regressor(q, qd, qdd), basis, joint_weights)
-
-
-def _information(Y: torch.Tensor, basis: torch.Tensor, joint_weights) -> torch.Tensor:
-    """M from the regressor ``Y (N, n_dof, n_params)``."""
-    Yb = (Y * _sqrt_weights(joint_weights, Y.shape[-2], Y)[:, None]) @ basis.to(Y)  # (N, n, r)
-    Yb = Yb.reshape(-1, Yb.shape[-1])
-    return Yb.T @ Yb / Y.shape[0]
-
-
-def criterion_value(M: torch.Tensor, kind: str = "d") -> torch.Tensor:
-    """The criterion of an information matrix (smaller is better; see the module).
-
-    Args:
-        M: ``(r, r)`` symmetric positive definite information matrix.
-        kind: ``"d"``, ``"condition"`` or ``"e"``.
-
-    Returns:
-        A 0-d tensor; +inf when M is singular (a direction not excited).
-    """
-    if kind not in CRITERIA:
-        raise ValueError(f"criterion must be one of {CRITERIA}, got {kind!r}")
-    ev = torch.linalg.eigvalsh(0.5 * (M + M.T))
-    if not bool(ev[0] > 0):
-        return ev.new_tensor(math.inf)
-    if kind == "d":
-        return -torch.log(ev).mean()
-    if kind == "condition":
-        return 0.5 * (torch.log(ev[-1]) - torch.log(ev[0]))
-    return -torch.log(ev[0])
-
-
-def _grid(period: float, n: int) -> torch.Tensor:
-    return torch.arange(n, dtype=torch.float64) * (period / n)
-
-
-def trajectory_information(
-    model: RigidBodyModel,
-    trajectory,
-    basis: torch.Tensor,
-    *,
-    n_grid: int = 1000,
-    joint_weights=None,
-) -> dict:
-    """Criteria, condition number and singular values of a trajectory's base regressor.
-
-    Args:
-        model: the robot.
-        trajectory: `FourierTrajectory` or `torchjfa.sim.SinusoidTrajectory` (model joint order).
-        basis: ``(n_params, r)`` V.
-        n_grid: samples over one period.
-        joint_weights: W's diagonal.
-
-    Returns:
-        ``{"d", "condition", "e"}`` criterion values, ``"condition_number"`` (cond of Y V) and
-        ``"singular_values"`` (of ``Y V / sqrt(N)``, descending, numpy).
-    """
-    with torch.no_grad():
-        M = information_matrix(
-            model, *trajectory(_grid(trajectory.period, n_grid)), basis, joint_weights=joint_weights
-        )
-        ev = torch.linalg.eigvalsh(M).clamp_min(0.0).flip(0)
-        out = {k: float(criterion_value(M, k)) for k in CRITERIA}
-    out["condition_number"] = float((ev[0] / ev[-1]).sqrt()) if ev[-1] > 0 else math.inf
-    out["singular_values"] = ev.sqrt().numpy()
-    return out
 
 
 @dataclass
@@ -295,6 +163,87 @@ def optimize_excitation(
             cannot meet on the fine grid even shrunk to rest.
     """
     t0 = time.perf_counter()
+    f0 = _check_design(
+        model,
+        limits,
+        criterion=criterion,
+        optimizer=optimizer,
+        harmonics=harmonics,
+        base_frequency=base_frequency,
+        duration=duration,
+        counts={"n_grid": n_grid, "n_starts": n_starts, "max_iter": max_iter},
+    )
+    n = model.n_dof
+    q0 = _posture(limits, posture, n)
+    g = generator if generator is not None else torch.Generator()
+    if generator is None and seed is not None:
+        g.manual_seed(int(seed))
+    basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
+    kin = None
+    if limits.workspace:
+        kin = _Kinematics(model, [b.frame for b in limits.workspace], torch.float64, "cpu")
+    problem = _Design(
+        model, limits, basis, criterion, joint_weights, kin, period_grid(1.0 / f0, n_grid), q0, f0
+    )
+    kw = {"dtype": torch.float64}
+    w = 2 * math.pi * f0 * torch.arange(1, harmonics + 1, **kw)
+    room = torch.as_tensor(np.minimum(q0 - limits.position_low, limits.position_high - q0), **kw)
+
+    best = None
+    values = []
+    total = n_starts * len(rounds)
+    with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
+        for _ in range(n_starts):
+            # a random start inside the position limits: each joint uses ~half of its room
+            a0 = torch.randn(n, harmonics, generator=g, **kw)
+            b0 = torch.randn(n, harmonics, generator=g, **kw)
+            a0, b0 = constrain_coefficients(a0, b0)
+            reach = ((a0.abs() + b0.abs()) / w).sum(-1)  # bound on |q - q0|
+            scale = (0.5 * room / reach)[:, None]
+            a_raw = (a0 * scale).requires_grad_(True)
+            b_raw = (b0 * scale).requires_grad_(True)
+            crit = math.inf
+            for rho in rounds:
+                crit = _optimise_round(problem, a_raw, b_raw, rho, optimizer, max_iter, room)
+                bar.update(1)
+                bar.set_postfix(criterion=f"{crit:.4g}")
+            with torch.no_grad():
+                a, b, (q, qd, qdd) = problem.states(a_raw, b_raw)
+                viol = constraint_violations(
+                    model, limits, q, qd, qdd, theta=problem.theta, kinematics=kin
+                )
+                worst = max(float(v.max()) for v in viol.values())
+            values.append(crit)
+            # prefer feasible starts on the coarse grid, then the criterion
+            key = (worst > 0, crit)
+            if best is None or key < best[0]:
+                best = (key, a.detach().clone(), b.detach().clone())
+    traj = FourierTrajectory(f0, q0, best[1].numpy(), best[2].numpy(), model.joint_names)
+    theta = problem.theta
+    shrink = _largest_feasible_scale(model, traj.scaled, limits, rate, theta=theta)
+    if shrink < 1.0:
+        traj = traj.scaled(shrink)
+    # the hard check: raises with every violated limit if even the shrunk trajectory fails
+    margins = check_limits(model, traj, limits, rate=rate, theta=theta)
+    info = trajectory_information(model, traj, basis, n_grid=n_grid, joint_weights=joint_weights)
+    return ExcitationResult(
+        trajectory=traj,
+        criterion=criterion,
+        value=info[criterion],
+        condition_number=info["condition_number"],
+        margins=margins,
+        basis=basis,
+        limits=limits,
+        start_values=values,
+        shrink=shrink,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _check_design(
+    model, limits, *, criterion, optimizer, harmonics, base_frequency, duration, counts
+) -> float:
+    """Check `optimize_excitation`'s arguments; returns the base frequency f0, Hz."""
     if not isinstance(model, RigidBodyModel):
         raise TypeError(f"model must be a RigidBodyModel, got {type(model)}")
     if not isinstance(limits, Limits) or limits.joint_names != model.joint_names:
@@ -316,12 +265,18 @@ def optimize_excitation(
             f"duration ({duration} s) must be a whole number of periods 1 / base_frequency "
             f"= {1 / f0:g} s"
         )
-    for name, v in (("n_grid", n_grid), ("n_starts", n_starts), ("max_iter", max_iter)):
+    for name, v in counts.items():
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise ValueError(f"{name} must be a positive int, got {v!r}")
-    if n_grid < 4 * harmonics:
-        raise ValueError(f"n_grid ({n_grid}) must be at least 4 x harmonics ({4 * harmonics})")
-    n = model.n_dof
+    if counts["n_grid"] < 4 * harmonics:
+        raise ValueError(
+            f"n_grid ({counts['n_grid']}) must be at least 4 x harmonics ({4 * harmonics})"
+        )
+    return f0
+
+
+def _posture(limits: Limits, posture, n: int) -> np.ndarray:
+    """``(n,)`` q0: ``posture``, or the middle of the position limits; strictly inside them."""
     lo, hi = limits.position_low, limits.position_high
     q0 = 0.5 * (lo + hi) if posture is None else np.asarray(posture, dtype=np.float64)
     if q0.shape != (n,):
@@ -331,100 +286,65 @@ def optimize_excitation(
         raise ValueError(
             f"the posture is outside the position limits (margin included) of {outside}"
         )
-    g = generator if generator is not None else torch.Generator()
-    if generator is None and seed is not None:
-        g.manual_seed(int(seed))
-    basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
-    kw = {"dtype": torch.float64}
-    t = _grid(1.0 / f0, n_grid)
-    posture_t = torch.as_tensor(q0, **kw)
-    kin = None
-    if limits.workspace:
-        kin = _Kinematics(model, [b.frame for b in limits.workspace], torch.float64, "cpu")
-    theta = model.nominal_theta
-    w = 2 * math.pi * f0 * torch.arange(1, harmonics + 1, **kw)
-    room = torch.as_tensor(np.minimum(q0 - lo, hi - q0), **kw)  # (n,) rad
+    return q0
 
-    def states(a_raw, b_raw):
+
+class _Design:
+    """The optimisation problem of `optimize_excitation` on the coarse grid ``t`` (one period).
+
+    ``states`` maps raw Fourier coefficients ``(n, H)`` to the constrained ones and the joint
+    states ``(n_grid, n)``; ``objective`` is the criterion plus ``rho`` times the limits'
+    penalty, and the criterion alone.
+    """
+
+    def __init__(self, model, limits, basis, criterion, joint_weights, kin, t, q0, f0) -> None:
+        self.model, self.limits, self.basis, self.kin = model, limits, basis, kin
+        self.criterion, self.joint_weights = criterion, joint_weights
+        self.t, self.f0 = t, f0
+        self.posture = torch.as_tensor(q0, dtype=torch.float64)
+        self.theta = model.nominal_theta
+
+    def states(self, a_raw, b_raw):
         a, b = constrain_coefficients(a_raw, b_raw)
-        return a, b, fourier_states(t, posture_t, a, b, f0)
+        return a, b, fourier_states(self.t, self.posture, a, b, self.f0)
 
-    def objective(a_raw, b_raw, rho):
-        _, _, (q, qd, qdd) = states(a_raw, b_raw)
-        Y = model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
-        crit = criterion_value(_information(Y, basis, joint_weights), criterion)
-        viol = constraint_violations(model, limits, q, qd, qdd, tau=Y @ theta, kinematics=kin)
+    def objective(self, a_raw, b_raw, rho):
+        _, _, (q, qd, qdd) = self.states(a_raw, b_raw)
+        Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
+        crit = criterion_value(
+            weighted_information(Y, self.basis, self.joint_weights), self.criterion
+        )
+        viol = constraint_violations(
+            self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin
+        )
         return crit + rho * _penalty(viol), crit
 
-    best = None
-    values = []
-    total = n_starts * len(rounds)
-    with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
-        for _ in range(n_starts):
-            # a random start inside the position limits: each joint uses ~half of its room
-            a0 = torch.randn(n, harmonics, generator=g, **kw)
-            b0 = torch.randn(n, harmonics, generator=g, **kw)
-            a0, b0 = constrain_coefficients(a0, b0)
-            reach = ((a0.abs() + b0.abs()) / w).sum(-1)  # bound on |q - q0|
-            scale = (0.5 * room / reach)[:, None]
-            a_raw = (a0 * scale).requires_grad_(True)
-            b_raw = (b0 * scale).requires_grad_(True)
-            crit = math.inf
-            for rho in rounds:
-                if optimizer == "lbfgs":
-                    opt = torch.optim.LBFGS(
-                        [a_raw, b_raw], lr=1.0, max_iter=max_iter, line_search_fn="strong_wolfe"
-                    )
 
-                    def closure(rho=rho, opt=opt, a_raw=a_raw, b_raw=b_raw):
-                        opt.zero_grad()
-                        loss, _ = objective(a_raw, b_raw, rho)
-                        if torch.isfinite(loss):
-                            loss.backward()
-                        return loss
+def _optimise_round(problem: _Design, a_raw, b_raw, rho, optimizer, max_iter, room) -> float:
+    """One penalty round on ``a_raw``, ``b_raw`` (in place); returns the criterion at its end."""
+    if optimizer == "lbfgs":
+        opt = torch.optim.LBFGS(
+            [a_raw, b_raw], lr=1.0, max_iter=max_iter, line_search_fn="strong_wolfe"
+        )
 
-                    opt.step(closure)
-                else:
-                    opt = torch.optim.Adam([a_raw, b_raw], lr=0.02 * float(room.mean()))
-                    for _ in range(max_iter):
-                        opt.zero_grad()
-                        loss, _ = objective(a_raw, b_raw, rho)
-                        loss.backward()
-                        opt.step()
-                with torch.no_grad():
-                    loss, c = objective(a_raw, b_raw, rho)
-                crit = float(c)
-                bar.update(1)
-                bar.set_postfix(criterion=f"{crit:.4g}")
-            with torch.no_grad():
-                a, b, (q, qd, qdd) = states(a_raw, b_raw)
-                viol = constraint_violations(model, limits, q, qd, qdd, theta=theta, kinematics=kin)
-                worst = max(float(v.max()) for v in viol.values())
-            values.append(crit)
-            # prefer feasible starts on the coarse grid, then the criterion
-            key = (worst > 0, crit)
-            if best is None or key < best[0]:
-                best = (key, a.detach().clone(), b.detach().clone())
-    traj = FourierTrajectory(f0, q0, best[1].numpy(), best[2].numpy(), model.joint_names)
+        def closure():
+            opt.zero_grad()
+            loss, _ = problem.objective(a_raw, b_raw, rho)
+            if torch.isfinite(loss):
+                loss.backward()
+            return loss
 
-    shrink = _largest_feasible_scale(model, traj.scaled, limits, rate, theta=theta)
-    if shrink < 1.0:
-        traj = traj.scaled(shrink)
-    # the hard check: raises with every violated limit if even the shrunk trajectory fails
-    margins = check_limits(model, traj, limits, rate=rate, theta=theta)
-    info = trajectory_information(model, traj, basis, n_grid=n_grid, joint_weights=joint_weights)
-    return ExcitationResult(
-        trajectory=traj,
-        criterion=criterion,
-        value=info[criterion],
-        condition_number=info["condition_number"],
-        margins=margins,
-        basis=basis,
-        limits=limits,
-        start_values=values,
-        shrink=shrink,
-        seconds=time.perf_counter() - t0,
-    )
+        opt.step(closure)
+    else:
+        opt = torch.optim.Adam([a_raw, b_raw], lr=0.02 * float(room.mean()))
+        for _ in range(max_iter):
+            opt.zero_grad()
+            loss, _ = problem.objective(a_raw, b_raw, rho)
+            loss.backward()
+            opt.step()
+    with torch.no_grad():
+        _, c = problem.objective(a_raw, b_raw, rho)
+    return float(c)
 
 
 def random_excitation(

@@ -269,21 +269,7 @@ def base_parameters(
         raise ValueError(f"rtol must lie in (0, 1) and resolution be > 0, got {rtol}, {resolution}")
     M = moments.xtx.to(torch.float64).cpu()
     M = 0.5 * (M + M.T)
-    diag = torch.diagonal(M).clamp_min(0)
-    # a column whose energy is below rtol of the largest of its kind (the same units: the test
-    # does not depend on the units of each kind) is zero up to rounding (a regressor entry that
-    # cancels in exact arithmetic comes out ~eps of its terms): scaling it to unit norm would
-    # make rounding look like a parameter of its own
-    kinds = [parameter_kind(n) for n in names]
-    largest = {}
-    for k, v in zip(kinds, diag.tolist(), strict=True):
-        largest[k] = max(largest.get(k, 0.0), v)
-    floor = torch.tensor([rtol * largest[k] for k in kinds], dtype=torch.float64)
-    excited = diag > floor
-    M = torch.where(excited.unsqueeze(0) & excited.unsqueeze(1), M, torch.zeros_like(M))
-    diag = torch.where(excited, diag, torch.zeros_like(diag))
-    if not bool(excited.any()):
-        raise ValueError("the data excite no parameter (X^T X is zero): no motion?")
+    M, diag, excited = _excited_columns(M, names, rtol)
     D = torch.where(excited, diag.sqrt(), torch.ones_like(diag))
     C = M / torch.outer(D, D)
     lam, vec = torch.linalg.eigh(C)  # ascending
@@ -296,32 +282,122 @@ def base_parameters(
 
     independent = _pivots(C, rank)
     dependent = tuple(i for i in range(d) if i not in set(independent))
-    ind, dep = list(independent), list(dependent)
-    C_bb = C[ind][:, ind]
-    L = torch.linalg.cholesky(C_bb)
-    if dep:
-        beta_s = torch.cholesky_solve(C[ind][:, dep], L)
-        # in scaled units a genuine dependency has coefficients of order 1; those of columns
-        # that are independent of the base columns' span only by rounding are ~eps * cond
-        beta_s = torch.where(beta_s.abs() > _BETA_TOL, beta_s, torch.zeros_like(beta_s))
-        beta = beta_s * D[dep].unsqueeze(0) / D[ind].unsqueeze(1)
-    else:
-        beta = M.new_zeros(rank, 0)
+    L, beta = _dependencies(C, D, list(independent), list(dependent))
+    noise_var, std = _base_fit(moments, M, D, L, list(independent), noise_var)
 
-    # least squares on the base columns: the residual and the base parameters' spread
+    # the noise decision in physical-scale coordinates
+    scales = parameter_scales(names, description, moments)
+    n_det, status = _statuses(
+        M,
+        scales,
+        excited,
+        null_space,
+        rank=rank,
+        noise_var=noise_var,
+        rtol=rtol,
+        resolution=resolution,
+    )
+    return BaseParameters(
+        names=names,
+        rank=rank,
+        n_determined=n_det,
+        singular_values=sv,
+        condition_number=cond,
+        independent=independent,
+        dependent=dependent,
+        beta=beta,
+        status=status,
+        noise_var=noise_var,
+        std=std,
+        scales=scales,
+        null_space=null_space,
+        rtol=rtol,
+        resolution=float(resolution),
+    )
+
+
+def _excited_columns(M: torch.Tensor, names, rtol: float):
+    """Zero the columns (and rows) of M that the data do not excite.
+
+    A column whose energy is below ``rtol`` of the largest of its kind (the same units: the
+    test does not depend on the units of each kind) is zero up to rounding (a regressor entry
+    that cancels in exact arithmetic comes out ~eps of its terms): scaling it to unit norm
+    would make rounding look like a parameter of its own.
+
+    Returns:
+        ``(M, diag, excited)``: M ``(d, d)`` and its diagonal with those columns zeroed, and the
+        ``(d,)`` bool mask of excited columns.
+
+    Raises:
+        ValueError: if no column is excited.
+    """
+    diag = torch.diagonal(M).clamp_min(0)
+    kinds = [parameter_kind(n) for n in names]
+    largest = {}
+    for k, v in zip(kinds, diag.tolist(), strict=True):
+        largest[k] = max(largest.get(k, 0.0), v)
+    floor = torch.tensor([rtol * largest[k] for k in kinds], dtype=torch.float64)
+    excited = diag > floor
+    M = torch.where(excited.unsqueeze(0) & excited.unsqueeze(1), M, torch.zeros_like(M))
+    diag = torch.where(excited, diag, torch.zeros_like(diag))
+    if not bool(excited.any()):
+        raise ValueError("the data excite no parameter (X^T X is zero): no motion?")
+    return M, diag, excited
+
+
+def _dependencies(C: torch.Tensor, D: torch.Tensor, ind: list[int], dep: list[int]):
+    """How the dependent columns combine the base ones: ``X[:, dep] = X[:, ind] @ beta``.
+
+    Args:
+        C: ``(d, d)`` the column-scaled X^T X; D: ``(d,)`` the column scales.
+        ind, dep: the base (independent) and dependent columns.
+
+    Returns:
+        ``(L, beta)``: the Cholesky factor of ``C``'s base block and ``(rank, n_dep)`` beta in
+        the parameters' units.
+    """
+    L = torch.linalg.cholesky(C[ind][:, ind])
+    if not dep:
+        return L, C.new_zeros(len(ind), 0)
+    beta_s = torch.cholesky_solve(C[ind][:, dep], L)
+    # in scaled units a genuine dependency has coefficients of order 1; those of columns
+    # that are independent of the base columns' span only by rounding are ~eps * cond
+    beta_s = torch.where(beta_s.abs() > _BETA_TOL, beta_s, torch.zeros_like(beta_s))
+    return L, beta_s * D[dep].unsqueeze(0) / D[ind].unsqueeze(1)
+
+
+def _base_fit(moments: Moments, M, D, L, ind: list[int], noise_var):
+    """Least squares on the base columns: the residual variance and the base parameters' spread.
+
+    Args:
+        M: ``(d, d)`` X^T X (unexcited columns zeroed); D: ``(d,)`` the column scales.
+        L: Cholesky factor of the base block of the column-scaled X^T X.
+        ind: the base (independent) columns.
+        noise_var: given residual variance, or None for ``rss / (N - rank)``.
+
+    Returns:
+        ``(noise_var, std)``: float, torque^2, and ``(rank,)``.
+    """
     M_bb = M[ind][:, ind]
     xty = moments.xty.to(torch.float64).cpu()
     Cinv = torch.cholesky_inverse(L)
     b_hat = (Cinv @ (xty[ind] / D[ind])) / D[ind]
     if noise_var is None:
         rss = float(moments.yty) - 2 * float(b_hat @ xty[ind]) + float(b_hat @ (M_bb @ b_hat))
-        dof = float(moments.n) - rank
+        dof = float(moments.n) - len(ind)
         noise_var = max(rss, 0.0) / dof if dof > 0 else float("nan")
     noise_var = float(noise_var)
     std = (noise_var * torch.diagonal(Cinv)).clamp_min(0).sqrt() / D[ind]
+    return noise_var, std
 
-    # the noise decision in physical-scale coordinates
-    scales = parameter_scales(names, description, moments)
+
+def _statuses(M, scales, excited, null_space, *, rank, noise_var, rtol, resolution):
+    """The noise decision in physical-scale coordinates and each parameter's status.
+
+    Returns:
+        ``(n_determined, status)``: the number of determined directions and, per parameter,
+        ``"not excited"``, ``"combination"``, ``"poorly excited"`` or ``"determined"``.
+    """
     Mp = M * torch.outer(scales, scales)
     mu, U = torch.linalg.eigh(0.5 * (Mp + Mp.T))
     if math.isfinite(noise_var):
@@ -332,7 +408,7 @@ def base_parameters(
     off_det = 1.0 - U[:, det].pow(2).sum(1)  # squared distance of e_k from the subspace
     in_null = null_space.pow(2).sum(1)
     status = []
-    for k in range(d):
+    for k in range(M.shape[0]):
         if not bool(excited[k]):
             status.append("not excited")
         elif float(in_null[k]) > _LEVERAGE_TOL:
@@ -341,23 +417,7 @@ def base_parameters(
             status.append("poorly excited")
         else:
             status.append("determined")
-    return BaseParameters(
-        names=names,
-        rank=rank,
-        n_determined=n_det,
-        singular_values=sv,
-        condition_number=cond,
-        independent=independent,
-        dependent=dependent,
-        beta=beta,
-        status=tuple(status),
-        noise_var=noise_var,
-        std=std,
-        scales=scales,
-        null_space=null_space,
-        rtol=rtol,
-        resolution=float(resolution),
-    )
+    return n_det, tuple(status)
 
 
 def _pivots(C: torch.Tensor, rank: int) -> tuple[int, ...]:

@@ -290,31 +290,13 @@ def project(
     if hasattr(theta_hat, "coef_"):
         theta_hat = theta_hat.coef_
     theta_hat = _check_theta(theta_hat, layout, "theta_hat").detach()
-    if parametrization not in PARAMETRIZATIONS:
-        raise ValueError(
-            f"parametrization must be one of {tuple(PARAMETRIZATIONS)}, got {parametrization!r}"
-        )
-    for name, value in (("ridge", ridge), ("prior_weight", prior_weight), ("tol", tol)):
-        if not float(value) >= 0:
-            raise ValueError(f"{name} must be non-negative, got {value}")
-    if int(max_iter) < 1:
-        raise ValueError(f"max_iter must be at least 1, got {max_iter}")
+    _check_options(
+        parametrization, ridge=ridge, prior_weight=prior_weight, tol=tol, max_iter=max_iter
+    )
     device, d = theta_hat.device, layout.n_params
     th = theta_hat.to(torch.float64)
     M = _metric(moments, metric, input_noise, d, device)
-    if prior is not None:
-        prior = _check_theta(prior, layout, "prior").to(device=device, dtype=torch.float64)
-    if float(prior_weight) > 0 and prior is None:
-        raise ValueError("prior_weight > 0 needs prior= (nominal parameters, shape (n_params,))")
-    prior_w = None
-    if prior_scale is not None:
-        p = _check_theta(prior_scale, layout, "prior_scale").to(device=device, dtype=torch.float64)
-        if not bool((p > 0).all()):
-            raise ValueError("prior_scale must be positive (a scale per parameter, its units)")
-        # (sum_k p_k^2 M_kk / d) / p_k^2 relative to the isotropic term's tr(M) / d: invariant
-        # under the problem's rescaling below
-        diag = torch.diagonal(M)
-        prior_w = (p.square() * diag).sum() / diag.sum() / p.square()
+    prior, prior_w = _prior_terms(prior, prior_weight, prior_scale, layout, M)
     # the problem is solved in units where theta_hat's size (`_unit_of`) and M's mean diagonal
     # are ~1, then scaled back: eq. 8 and the consistent set are
     # invariant under theta -> s theta (s > 0), so the answer for s theta_hat is s times the
@@ -338,8 +320,71 @@ def project(
             tol=float(tol),
             verbose=verbose,
         )
-    phi = fitted.phi.detach()
+    result = _result(
+        cls,
+        fitted,
+        problem,
+        layout,
+        theta_hat,
+        unit=unit,
+        m_unit=m_unit,
+        parametrization=parametrization,
+        stats=(n_iter, n_eval, converged),
+    )
+    if verbose:
+        print(result.table())
+    return result
 
+
+def _check_options(parametrization: str, *, ridge, prior_weight, tol, max_iter) -> None:
+    """ValueError on an unknown parametrisation, negative weights or tol, ``max_iter < 1``."""
+    if parametrization not in PARAMETRIZATIONS:
+        raise ValueError(
+            f"parametrization must be one of {tuple(PARAMETRIZATIONS)}, got {parametrization!r}"
+        )
+    for name, value in (("ridge", ridge), ("prior_weight", prior_weight), ("tol", tol)):
+        if not float(value) >= 0:
+            raise ValueError(f"{name} must be non-negative, got {value}")
+    if int(max_iter) < 1:
+        raise ValueError(f"max_iter must be at least 1, got {max_iter}")
+
+
+def _prior_terms(prior, prior_weight, prior_scale, layout, M: torch.Tensor):
+    """The checked prior ``(n_params,)`` float64 (or None) and its per-parameter weights.
+
+    Returns:
+        ``(prior, prior_w)``: ``prior_w`` is None without ``prior_scale``, else ``(n_params,)``
+        ``(sum_k p_k^2 M_kk / sum_k M_kk) / p^2``.
+    """
+    device = M.device
+    if prior is not None:
+        prior = _check_theta(prior, layout, "prior").to(device=device, dtype=torch.float64)
+    if float(prior_weight) > 0 and prior is None:
+        raise ValueError("prior_weight > 0 needs prior= (nominal parameters, shape (n_params,))")
+    if prior_scale is None:
+        return prior, None
+    p = _check_theta(prior_scale, layout, "prior_scale").to(device=device, dtype=torch.float64)
+    if not bool((p > 0).all()):
+        raise ValueError("prior_scale must be positive (a scale per parameter, its units)")
+    # (sum_k p_k^2 M_kk / d) / p_k^2 relative to the isotropic term's tr(M) / d: invariant
+    # under the problem's rescaling in `project`
+    diag = torch.diagonal(M)
+    return prior, (p.square() * diag).sum() / diag.sum() / p.square()
+
+
+def _result(
+    cls, fitted, problem: Problem, layout, theta_hat, *, unit, m_unit, parametrization, stats
+) -> ProjectionResult:
+    """The `ProjectionResult` of a module fitted to the normalised ``problem``.
+
+    Args:
+        unit, m_unit: the scales of theta and of M that `project` divided out.
+        stats: ``(n_iter, n_eval, converged)`` of the fit.
+    """
+    n_iter, n_eval, converged = stats
+    th = theta_hat.to(torch.float64)
+    th_n, M_n = problem.theta_hat, problem.M
+    phi = fitted.phi.detach()
     with torch.no_grad():
         theta0_n = cls.from_theta(th_n, layout)()
         theta_n = fitted()
@@ -356,7 +401,7 @@ def project(
     per_new = theta64.reshape(layout.n_joints, -1)
     denom = per_hat.norm(dim=-1)
     rel = (per_new - per_hat).norm(dim=-1) / torch.where(denom > 0, denom, torch.ones_like(denom))
-    result = ProjectionResult(
+    return ProjectionResult(
         theta=theta64.to(theta_hat.dtype),
         theta_hat=theta_hat,
         virtual=fitted,
@@ -374,9 +419,6 @@ def project(
         before=check(th, layout),
         after=check(theta64, layout),
     )
-    if verbose:
-        print(result.table())
-    return result
 
 
 def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose):

@@ -173,90 +173,140 @@ def computed_torque(
     if n_steps < 1:
         raise ValueError(f"duration must cover at least one control step, got {duration}")
     w = 2.0 * np.pi * bandwidth_hz
-    kp, kd = w * w, 2.0 * damping_ratio * w
 
     def call(q, qd, qdd):
         with torch.no_grad():
             return inverse_dynamics(q, qd, qdd)
 
-    t = np.arange(n_steps) * h
-    q_ref, qd_ref, qdd_ref = trajectory.evaluate_numpy(t)
-    nan = np.full(n, np.nan)
-
-    def fail(reason: str, steps: int, max_err: float = float("nan")) -> ControlResult:
-        return ControlResult(False, reason, names, nan, nan, nan, max_err, steps)
-
-    as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a[..., to_id]), dtype=torch.float64)
+    run = _Run(
+        names=names,
+        to_id=to_id,
+        call=call,
+        reference=trajectory.evaluate_numpy(np.arange(n_steps) * h),
+        h=h,
+        kp=w * w,
+        kd=2.0 * damping_ratio * w,
+        max_position_error=max_position_error,
+        limit_margin=limit_margin,
+    )
     if check_inertia:
         idx = np.linspace(0, n_steps - 1, min(inertia_samples, n_steps)).round().astype(int)
-        ok, reason = _inertia_ok(call, as_t(q_ref[idx]))
+        ok, reason = _inertia_ok(call, run.to_torch(run.reference[0][idx]))
         if not ok:
-            return fail(reason, 0)
-    tau_ref = np.empty_like(q_ref)
-    tau_ref[:, to_id] = call(as_t(q_ref), as_t(qd_ref), as_t(qdd_ref)).numpy()
+            return run.fail(reason, 0)
+    tau_ref = run.feedforward()
     if not np.isfinite(tau_ref).all():
-        return fail("the identified inverse dynamics returned NaN or inf on the reference", 0)
-
-    m = model
-    old_dt = m.opt.timestep
-    m.opt.timestep = h / substeps
+        return run.fail("the identified inverse dynamics returned NaN or inf on the reference", 0)
+    old_dt = model.opt.timestep
+    model.opt.timestep = h / substeps
     try:
-        data = mujoco.MjData(m)
-        data.qpos[:] = q_ref[0]
-        data.qvel[:] = qd_ref[0]
-        mujoco.mj_forward(m, data)
-        ranges = joint_ranges(m)
-        lo, hi = ranges[:, 0] - limit_margin, ranges[:, 1] + limit_margin
-        err_q = np.empty((n_steps, n))
-        err_qd = np.empty((n_steps, n))
-        fb = np.empty((n_steps, n))
-        q_in = torch.empty(1, n, dtype=torch.float64)
-        qd_in = torch.empty(1, n, dtype=torch.float64)
-        a_in = torch.empty(1, n, dtype=torch.float64)
-        qn, qdn, an = q_in.numpy()[0], qd_in.numpy()[0], a_in.numpy()[0]
-        badqacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
-        with progress_bar(total=n_steps, desc="computed torque", enabled=progress) as bar:
-            for k in range(n_steps):
-                q, qd = data.qpos, data.qvel
-                if not (np.isfinite(q).all() and np.isfinite(qd).all()):
-                    return fail(f"the state became NaN or inf at t = {k * h:.4g} s", k)
-                np.subtract(q, q_ref[k], out=err_q[k])
-                np.subtract(qd, qd_ref[k], out=err_qd[k])
-                worst = float(np.abs(err_q[k]).max())
-                if worst > max_position_error:
-                    return fail(
-                        f"position error {worst:.3g} rad exceeds {max_position_error} rad at "
-                        f"t = {k * h:.4g} s",
-                        k,
-                        worst,
-                    )
-                if np.any(q < lo) or np.any(q > hi):
-                    j = int(np.argmax(np.maximum(lo - q, q - hi)))
-                    return fail(
-                        f"joint {names[j]!r} left its range by more than {limit_margin} rad at "
-                        f"t = {k * h:.4g} s",
-                        k,
-                        worst,
-                    )
-                qn[:] = q[to_id]
-                qdn[:] = qd[to_id]
-                an[:] = (qdd_ref[k] - kp * err_q[k] - kd * err_qd[k])[to_id]
-                tau = call(q_in, qd_in, a_in)[0].numpy()
-                if not np.isfinite(tau).all():
-                    return fail(f"the identified model returned NaN at t = {k * h:.4g} s", k)
-                data.ctrl[to_id] = tau
-                fb[k] = data.ctrl - tau_ref[k]
-                mujoco.mj_step(m, data, substeps)
-                if data.warning[badqacc].number > 0:
-                    return fail(f"MuJoCo reported bad accelerations at t = {k * h:.4g} s", k)
-                bar.update(1)
+        return _track(model, run, tau_ref, substeps, progress)
     finally:
-        m.opt.timestep = old_dt
+        model.opt.timestep = old_dt
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What one computed-torque run needs at every step (arrays in MuJoCo joint order).
+
+    Attributes:
+        names: ``(n,)`` MuJoCo's joints; to_id: ``(n,)`` ID's order, ``id_vec = mj_vec[to_id]``.
+        call: ID without grad.
+        reference: ``(q_ref, qd_ref, qdd_ref)``, ``(n_steps, n)`` each.
+        h: control step, s; kp, kd: acceleration gains, 1/s^2 and 1/s.
+        max_position_error, limit_margin: rad, the failure thresholds.
+    """
+
+    names: tuple[str, ...]
+    to_id: np.ndarray
+    call: Callable
+    reference: tuple[np.ndarray, np.ndarray, np.ndarray]
+    h: float
+    kp: float
+    kd: float
+    max_position_error: float
+    limit_margin: float
+
+    def to_torch(self, a: np.ndarray) -> torch.Tensor:
+        """``(..., n)`` in MuJoCo's order -> float64 tensor in ID's order."""
+        return torch.as_tensor(np.ascontiguousarray(a[..., self.to_id]), dtype=torch.float64)
+
+    def fail(self, reason: str, steps: int, max_err: float = float("nan")) -> ControlResult:
+        nan = np.full(len(self.names), np.nan)
+        return ControlResult(False, reason, self.names, nan, nan, nan, max_err, steps)
+
+    def feedforward(self) -> np.ndarray:
+        """``(n_steps, n)`` ``ID(q_ref, qd_ref, qdd_ref)`` in MuJoCo's order."""
+        q_ref, qd_ref, qdd_ref = self.reference
+        tau_ref = np.empty_like(q_ref)
+        tau_ref[:, self.to_id] = self.call(
+            self.to_torch(q_ref), self.to_torch(qd_ref), self.to_torch(qdd_ref)
+        ).numpy()
+        return tau_ref
+
+    def state_problem(self, q, err_q: np.ndarray, lo, hi, t: float) -> tuple[str, float] | None:
+        """Why the run fails at this step (position error, joint range), with the worst error."""
+        worst = float(np.abs(err_q).max())
+        if worst > self.max_position_error:
+            return (
+                f"position error {worst:.3g} rad exceeds {self.max_position_error} rad at "
+                f"t = {t:.4g} s"
+            ), worst
+        if np.any(q < lo) or np.any(q > hi):
+            j = int(np.argmax(np.maximum(lo - q, q - hi)))
+            return (
+                f"joint {self.names[j]!r} left its range by more than {self.limit_margin} rad at "
+                f"t = {t:.4g} s"
+            ), worst
+        return None
+
+
+def _track(m: mujoco.MjModel, run: _Run, tau_ref: np.ndarray, substeps: int, progress: bool):
+    """The control loop (``m.opt.timestep`` already the physics step); a `ControlResult`."""
+    q_ref, qd_ref, qdd_ref = run.reference
+    n_steps, n = q_ref.shape
+    h, kp, kd, to_id = run.h, run.kp, run.kd, run.to_id
+    data = mujoco.MjData(m)
+    data.qpos[:] = q_ref[0]
+    data.qvel[:] = qd_ref[0]
+    mujoco.mj_forward(m, data)
+    ranges = joint_ranges(m)
+    lo, hi = ranges[:, 0] - run.limit_margin, ranges[:, 1] + run.limit_margin
+    err_q = np.empty((n_steps, n))
+    err_qd = np.empty((n_steps, n))
+    fb = np.empty((n_steps, n))
+    q_in = torch.empty(1, n, dtype=torch.float64)
+    qd_in = torch.empty(1, n, dtype=torch.float64)
+    a_in = torch.empty(1, n, dtype=torch.float64)
+    qn, qdn, an = q_in.numpy()[0], qd_in.numpy()[0], a_in.numpy()[0]
+    badqacc = int(mujoco.mjtWarning.mjWARN_BADQACC)
+    with progress_bar(total=n_steps, desc="computed torque", enabled=progress) as bar:
+        for k in range(n_steps):
+            q, qd = data.qpos, data.qvel
+            if not (np.isfinite(q).all() and np.isfinite(qd).all()):
+                return run.fail(f"the state became NaN or inf at t = {k * h:.4g} s", k)
+            np.subtract(q, q_ref[k], out=err_q[k])
+            np.subtract(qd, qd_ref[k], out=err_qd[k])
+            problem = run.state_problem(q, err_q[k], lo, hi, k * h)
+            if problem is not None:
+                return run.fail(problem[0], k, problem[1])
+            qn[:] = q[to_id]
+            qdn[:] = qd[to_id]
+            an[:] = (qdd_ref[k] - kp * err_q[k] - kd * err_qd[k])[to_id]
+            tau = run.call(q_in, qd_in, a_in)[0].numpy()
+            if not np.isfinite(tau).all():
+                return run.fail(f"the identified model returned NaN at t = {k * h:.4g} s", k)
+            data.ctrl[to_id] = tau
+            fb[k] = data.ctrl - tau_ref[k]
+            mujoco.mj_step(m, data, substeps)
+            if data.warning[badqacc].number > 0:
+                return run.fail(f"MuJoCo reported bad accelerations at t = {k * h:.4g} s", k)
+            bar.update(1)
     rms = lambda e: np.sqrt(np.mean(e * e, axis=0))
     return ControlResult(
         True,
         None,
-        names,
+        run.names,
         rms(err_q),
         rms(err_qd),
         rms(fb),

@@ -26,6 +26,7 @@ the RMS acceleration for these robots even without noise. Use ``qdd_true`` for e
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -47,6 +48,168 @@ def _int(value, name: str, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
     return int(value)
+
+
+@dataclass(frozen=True)
+class _Clock:
+    """The run's control steps: ``settle`` periods before the record, a lead-in and a tail.
+
+    Attributes:
+        rate: control (and sampling) rate, Hz; h: its step, s.
+        period: samples per period of the reference.
+        lead: recorded samples before the first returned one (the filter's lead-in).
+        pad: recorded samples after the last returned one.
+        start: the first recorded control step; n_rec: steps recorded; n_total: steps run.
+    """
+
+    rate: float
+    h: float
+    period: int
+    lead: int
+    pad: int
+    start: int
+    n_rec: int
+    n_total: int
+
+    @classmethod
+    def of(cls, rate: float, period: int, settle_periods: int, n_samples: int) -> _Clock:
+        pad = int(np.ceil(_PAD_SECONDS * rate))
+        lead = min(pad, settle_periods * period)
+        start = settle_periods * period - lead
+        n_rec = lead + n_samples + pad
+        return cls(rate, 1.0 / rate, period, lead, pad, start, n_rec, start + n_rec)
+
+
+@dataclass(frozen=True)
+class _TrackingLaw:
+    """``qdd_cmd = const[k % period] - kp q - kd qd``: the PD law on one period of reference.
+
+    Attributes:
+        q0, qd0: ``(n_dof,)`` the reference at t = 0 (the initial state).
+        const: ``(period, n_dof)`` ``qdd_ref + kp q_ref + kd qd_ref``.
+        kp, kd: acceleration gains, 1/s^2 and 1/s.
+    """
+
+    q0: np.ndarray
+    qd0: np.ndarray
+    const: np.ndarray
+    kp: float
+    kd: float
+
+    @classmethod
+    def of(cls, trajectory: SinusoidTrajectory, clock: _Clock, bandwidth_hz, damping_ratio):
+        q_ref, qd_ref, qdd_ref = trajectory.evaluate_numpy(np.arange(clock.period) * clock.h)
+        if not bandwidth_hz > 0 or not damping_ratio > 0:
+            raise ValueError("bandwidth_hz and damping_ratio must be positive")
+        w = 2.0 * np.pi * bandwidth_hz
+        kp, kd = w * w, 2.0 * damping_ratio * w
+        return cls(q_ref[0], qd_ref[0], qdd_ref + kp * q_ref + kd * qd_ref, kp, kd)
+
+
+def _period_samples(trajectory: SinusoidTrajectory, rate: float) -> int:
+    """The reference's period in control steps; ValueError unless it is a whole number >= 2."""
+    period_f = rate * trajectory.period
+    period = int(round(period_f))
+    if abs(period_f - period) > 1e-6 * period_f or period < 2:
+        raise ValueError(
+            f"the trajectory's period ({trajectory.period} s) times the control rate ({rate} Hz) "
+            f"must be a whole number of samples, got {period_f}"
+        )
+    return period
+
+
+def _sensor_noise(stds, seed, n_rec: int) -> list[np.ndarray]:
+    """Gaussian sensor noise of q, qd and tau, ``(n_rec, n_dof)`` each (drawn in that order).
+
+    Args:
+        stds: the three ``(n_dof,)`` standard deviations (`SensorNoise.per_joint`).
+        seed: a numpy seed (a `SeedSequence`).
+    """
+    rng = np.random.default_rng(seed)
+    return [rng.standard_normal((n_rec, len(std))) * std for std in stds]
+
+
+def _simulate(
+    model, law: _TrackingLaw, clock: _Clock, substeps: int, *, feedback_noise, name, progress
+):
+    """Run the computed-torque loop and record the true state, acceleration and torque.
+
+    The torque ``ID_mj(q, qd, qdd_cmd)`` (`mujoco.mj_inverse` at the true state) is held for
+    ``substeps`` physics steps; ``feedback_noise`` ``(n_q, n_qd)`` (or None) is added to the
+    state the PD errors see.
+
+    Returns:
+        ``Q, QD, QDD, TAU``, ``(clock.n_rec, n_dof)`` each, from step ``clock.start`` on.
+
+    Raises:
+        RuntimeError: if the simulation diverges.
+    """
+    n_rec, n_dof, start, period = clock.n_rec, model.njnt, clock.start, clock.period
+    kp, kd, const = law.kp, law.kd, law.const
+    Q = np.empty((n_rec, n_dof))
+    QD = np.empty((n_rec, n_dof))
+    QDD = np.empty((n_rec, n_dof))
+    TAU = np.empty((n_rec, n_dof))
+    data = mujoco.MjData(model)
+    data.qpos[:] = law.q0
+    data.qvel[:] = law.qd0
+    mujoco.mj_forward(model, data)
+    qpos, qvel, qacc, ctrl = data.qpos, data.qvel, data.qacc, data.ctrl
+    qfrc_inverse = data.qfrc_inverse
+    tmp_p = np.empty(n_dof)
+    tmp_v = np.empty(n_dof)
+    step, inverse = mujoco.mj_step, mujoco.mj_inverse
+    more = substeps - 1
+    block = 1000
+    n_total = clock.n_total
+    with progress_bar(total=n_total, desc=f"simulate {name}", enabled=progress, unit="step") as bar:
+        for k in range(n_total):
+            i = k % period
+            r = k - start
+            if r >= 0:
+                Q[r] = qpos
+                QD[r] = qvel
+            if feedback_noise is not None and r >= 0:
+                np.add(qpos, feedback_noise[0][r], out=tmp_p)
+                np.add(qvel, feedback_noise[1][r], out=tmp_v)
+                tmp_p *= kp
+                tmp_v *= kd
+            else:
+                np.multiply(kp, qpos, out=tmp_p)
+                np.multiply(kd, qvel, out=tmp_v)
+            np.subtract(const[i], tmp_p, out=qacc)
+            qacc -= tmp_v
+            inverse(model, data)  # M(q), bias and passive terms at the true state
+            ctrl[:] = qfrc_inverse
+            step(model, data)
+            if r >= 0:
+                QDD[r] = qacc
+                TAU[r] = ctrl
+            if more:
+                step(model, data, more)
+            if (k + 1) % block == 0:
+                if not np.isfinite(qacc).all():
+                    raise RuntimeError(f"the simulation of {name} diverged at step {k}")
+                bar.update(block)
+        bar.update(n_total % block)
+    for arr, what in ((Q, "q"), (QD, "qd"), (QDD, "qdd"), (TAU, "tau")):
+        if not np.isfinite(arr).all():
+            raise RuntimeError(f"the simulation of {name} diverged ({what} is not finite)")
+    return Q, QD, QDD, TAU
+
+
+def _derivatives(t, q_meas, qd_meas, velocity_source: str, **kw) -> tuple[np.ndarray, np.ndarray]:
+    """The logged qd and qdd: the velocity sensor and its derivative, or q's two derivatives.
+
+    Args:
+        t: ``(n,)`` s; q_meas, qd_meas: ``(n, n_dof)`` measured signals.
+        kw: ``method`` and ``cutoff_hz`` of `torchjfa.data.differentiate`.
+    """
+    tt = torch.as_tensor(t, dtype=torch.float64)
+    if velocity_source == "sensor":
+        return qd_meas, differentiate(tt, qd_meas, **kw).first.numpy()
+    der = differentiate(tt, q_meas, **kw)
+    return der.first.numpy(), der.second.numpy()
 
 
 def generate_log(
@@ -114,107 +277,33 @@ def generate_log(
     noise = SensorNoise() if noise is None else noise
     if not isinstance(noise, SensorNoise):
         raise TypeError(f"noise must be a SensorNoise, got {type(noise)}")
-    std_q, std_qd, std_tau = noise.per_joint(n_dof)
+    stds = noise.per_joint(n_dof)
     traj_seed, noise_seed = np.random.SeedSequence(seed).spawn(2)
     if trajectory is None:
         trajectory = random_trajectory(model, seed=traj_seed)
     if trajectory.n_dof != n_dof:
         raise ValueError(f"trajectory has {trajectory.n_dof} joints, the robot has {n_dof}")
-    period_f = rate * trajectory.period
-    period = int(round(period_f))
-    if abs(period_f - period) > 1e-6 * period_f or period < 2:
-        raise ValueError(
-            f"the trajectory's period ({trajectory.period} s) times the control rate ({rate} Hz) "
-            f"must be a whole number of samples, got {period_f}"
-        )
-
-    h = 1.0 / rate
-    model.opt.timestep = h / substeps
-    pad = int(np.ceil(_PAD_SECONDS * rate))
-    lead = min(pad, settle_periods * period)
-    start = settle_periods * period - lead  # first recorded control step
-    n_rec = lead + n_samples + pad
-    n_total = start + n_rec
-
-    # one period of reference
-    t_period = np.arange(period) * h
-    q_ref, qd_ref, qdd_ref = trajectory.evaluate_numpy(t_period)
-    if not bandwidth_hz > 0 or not damping_ratio > 0:
-        raise ValueError("bandwidth_hz and damping_ratio must be positive")
-    w = 2.0 * np.pi * bandwidth_hz
-    kp, kd = w * w, 2.0 * damping_ratio * w
-    # qdd_cmd = const[i] - kp q - kd qd
-    const = qdd_ref + kp * q_ref + kd * qd_ref
-
-    rng = np.random.default_rng(noise_seed)
-    n_q = rng.standard_normal((n_rec, n_dof)) * std_q
-    n_qd = rng.standard_normal((n_rec, n_dof)) * std_qd
-    n_tau = rng.standard_normal((n_rec, n_dof)) * std_tau
-
-    Q = np.empty((n_rec, n_dof))
-    QD = np.empty((n_rec, n_dof))
-    QDD = np.empty((n_rec, n_dof))
-    TAU = np.empty((n_rec, n_dof))
-    data = mujoco.MjData(model)
-    data.qpos[:] = q_ref[0]
-    data.qvel[:] = qd_ref[0]
-    mujoco.mj_forward(model, data)
-    qpos, qvel, qacc, ctrl = data.qpos, data.qvel, data.qacc, data.ctrl
-    qfrc_inverse = data.qfrc_inverse
-    tmp_p = np.empty(n_dof)
-    tmp_v = np.empty(n_dof)
-    step, inverse = mujoco.mj_step, mujoco.mj_inverse
-    more = substeps - 1
-    block = 1000
-    with progress_bar(
-        total=n_total, desc=f"simulate {robot}", enabled=progress, unit="step"
-    ) as bar:
-        for k in range(n_total):
-            i = k % period
-            r = k - start
-            if r >= 0:
-                Q[r] = qpos
-                QD[r] = qvel
-            if noisy_feedback and r >= 0:
-                np.add(qpos, n_q[r], out=tmp_p)
-                np.add(qvel, n_qd[r], out=tmp_v)
-                tmp_p *= kp
-                tmp_v *= kd
-            else:
-                np.multiply(kp, qpos, out=tmp_p)
-                np.multiply(kd, qvel, out=tmp_v)
-            np.subtract(const[i], tmp_p, out=qacc)
-            qacc -= tmp_v
-            inverse(model, data)  # M(q), bias and passive terms at the true state
-            ctrl[:] = qfrc_inverse
-            step(model, data)
-            if r >= 0:
-                QDD[r] = qacc
-                TAU[r] = ctrl
-            if more:
-                step(model, data, more)
-            if (k + 1) % block == 0:
-                if not np.isfinite(qacc).all():
-                    raise RuntimeError(f"the simulation of {robot} diverged at step {k}")
-                bar.update(block)
-        bar.update(n_total % block)
-    for arr, name in ((Q, "q"), (QD, "qd"), (QDD, "qdd"), (TAU, "tau")):
-        if not np.isfinite(arr).all():
-            raise RuntimeError(f"the simulation of {robot} diverged ({name} is not finite)")
-
-    t_rec = (start + np.arange(n_rec)) * h
+    clock = _Clock.of(rate, _period_samples(trajectory, rate), settle_periods, n_samples)
+    model.opt.timestep = clock.h / substeps
+    law = _TrackingLaw.of(trajectory, clock, bandwidth_hz, damping_ratio)
+    n_q, n_qd, n_tau = _sensor_noise(stds, noise_seed, clock.n_rec)
+    Q, QD, QDD, TAU = _simulate(
+        model,
+        law,
+        clock,
+        substeps,
+        feedback_noise=(n_q, n_qd) if noisy_feedback else None,
+        name=robot,
+        progress=progress,
+    )
+    t_rec = (clock.start + np.arange(clock.n_rec)) * clock.h
     q_meas = Q + n_q
     qd_meas = QD + n_qd
     tau_meas = TAU + n_tau
-    tt = torch.as_tensor(t_rec, dtype=torch.float64)
-    kw = {"method": diff_method, "cutoff_hz": cutoff_hz}
-    if velocity_source == "sensor":
-        qd_log = qd_meas
-        qdd_log = differentiate(tt, qd_meas, **kw).first.numpy()
-    else:
-        der = differentiate(tt, q_meas, **kw)
-        qd_log, qdd_log = der.first.numpy(), der.second.numpy()
-    keep = slice(lead, lead + n_samples)
+    qd_log, qdd_log = _derivatives(
+        t_rec, q_meas, qd_meas, velocity_source, method=diff_method, cutoff_hz=cutoff_hz
+    )
+    keep = slice(clock.lead, clock.lead + n_samples)
 
     def out(a):
         return torch.as_tensor(np.ascontiguousarray(a[keep]), dtype=torch.float64)
@@ -232,7 +321,7 @@ def generate_log(
         qd_true=out(QD),
         qdd_true=out(QDD),
         tau_true=out(TAU),
-        period_samples=period,
+        period_samples=clock.period,
         control_rate=rate,
         noise=noise,
         seed=seed,

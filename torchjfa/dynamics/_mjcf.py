@@ -1,0 +1,183 @@
+"""Reading an MJCF into the `KinematicTree`: MuJoCo compiles it, pytorch-kinematics orders it.
+
+The numbers come from MuJoCo's compiled ``MjModel`` (``body_pos``/``body_quat``,
+``jnt_pos``/``jnt_axis``, ``body_mass``/``body_ipos``/``body_iquat``/``body_inertia``), the joint
+order from pytorch-kinematics' chain; see `torchjfa.dynamics._tree` for why both, and for the
+URDF side. Use `RigidBodyModel.from_mjcf` rather than this module.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._tree import Frame, KinematicTree, inertial_np, lump, pk_children, quat_matrix
+
+__all__ = ["tree_from_mjcf"]
+
+
+def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree, object, object]:
+    """Parse MJCF (text, and its path for relative assets) into a tree, the pk chain and the
+    compiled ``MjModel``."""
+    import mujoco
+
+    try:
+        model = (
+            mujoco.MjModel.from_xml_path(path)
+            if path is not None
+            else mujoco.MjModel.from_xml_string(text)
+        )
+    except ValueError as exc:
+        raise ValueError(f"MuJoCo cannot compile this MJCF: {exc}") from exc
+    _check_mjcf(model)
+    if gravity is None:
+        gravity = np.array(model.opt.gravity, dtype=np.float64)
+    chain = _pk_chain_from_mjcf(text, model)
+    return lump(_frames(model, chain), chain, gravity), chain, model
+
+
+def _check_mjcf(model) -> None:
+    """Refuse what the tree cannot hold: free/ball joints, unnamed joints, several joints on a
+    body, no joint at all, active equality constraints."""
+    import mujoco
+
+    for j in range(model.njnt):
+        jt = int(model.jnt_type[j])
+        if jt in (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)):
+            kind = "free" if jt == int(mujoco.mjtJoint.mjJNT_FREE) else "ball"
+            raise ValueError(
+                f"joint {model.joint(j).name!r} is a {kind} joint: floating bases and ball joints "
+                "are not supported; use hinge and slide joints on a fixed base"
+            )
+        if not model.joint(j).name:
+            raise ValueError(f"joint {j} has no name; every joint needs a unique name")
+    for b in range(1, model.nbody):
+        if model.body_jntnum[b] > 1:
+            raise ValueError(
+                f"body {model.body(b).name or b!r} has {model.body_jntnum[b]} joints; "
+                "one joint per body is supported (split it into nested bodies, one joint each)"
+            )
+    if model.njnt == 0:
+        raise ValueError("the MJCF has no joints; a model needs at least one moving joint")
+    active = [e for e in range(model.neq) if model.eq_active0[e]]
+    if active:
+        kinds = [
+            f"{mujoco.mjtEq(int(model.eq_type[e])).name[5:].lower()} "
+            + (repr(model.equality(e).name) if model.equality(e).name else f"#{e}")
+            for e in active
+        ]
+        raise ValueError(
+            f"the MJCF has {len(active)} active equality constraint(s) ({', '.join(kinds)}): "
+            "coupled joints (the MJCF form of a URDF mimic joint) and closed loops are not "
+            'supported; remove them from <equality> or mark them active="false"'
+        )
+
+
+def _frames(model, chain) -> list[Frame]:
+    """The compiled model's bodies as `Frame` records, parents first, checked against pk's chain."""
+    import mujoco
+
+    frames: list[Frame] = []
+
+    def visit(pk_frame, body: int, parent: int) -> None:
+        if body > 0:
+            rec = Frame(
+                model.body(body).name,
+                parent,
+                quat_matrix(model.body_quat[body]),
+                np.array(model.body_pos[body], dtype=np.float64),
+            )
+        else:
+            rec = Frame(model.body(0).name, -1, np.eye(3), np.zeros(3))
+        if pk_frame.link.name != rec.name:
+            raise ValueError(
+                f"pytorch-kinematics and MuJoCo disagree on the tree at body {rec.name!r}"
+            )
+        if body > 0 and model.body_jntnum[body] == 1:
+            j = int(model.body_jntadr[body])
+            rec.joint = model.joint(j).name
+            rec.joint_type = (
+                "revolute"
+                if int(model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE)
+                else "prismatic"
+            )
+            rec.axis = np.array(model.jnt_axis[j], dtype=np.float64)
+            rec.axis_point = np.array(model.jnt_pos[j], dtype=np.float64)
+            if pk_frame.joint.name != rec.joint:
+                raise ValueError(f"pytorch-kinematics and MuJoCo disagree on joint {rec.joint!r}")
+        inertia_c = (
+            quat_matrix(model.body_iquat[body])
+            @ np.diag(model.body_inertia[body])
+            @ quat_matrix(model.body_iquat[body]).T
+        )
+        rec.inertial = inertial_np(float(model.body_mass[body]), model.body_ipos[body], inertia_c)
+        frames.append(rec)
+        me = len(frames) - 1
+        kids = [c for c in range(body + 1, model.nbody) if model.body_parentid[c] == body]
+        pk_kids = pk_children(pk_frame)[: len(kids)]  # pk lists child bodies first, then sites
+        for child_frame, child in zip(pk_kids, kids, strict=True):
+            visit(child_frame, child, me)
+
+    visit(chain._root, 0, -1)
+    return frames
+
+
+def _pk_chain_from_mjcf(text: str, model):
+    """pytorch-kinematics' chain of an MJCF.
+
+    ``pk.build_chain_from_mjcf`` is used when it works. pytorch-kinematics 0.10 looks joint
+    types up with MuJoCo enum keys, which recent MuJoCo versions (4.x) no longer match with the
+    integers ``MjModel`` returns (a KeyError), and it recompiles from a string, which loses the
+    file's directory; in those cases the same chain is built here from the compiled model with
+    pk's own ``Frame``/``Link``/``Joint``/``Chain`` classes, as pk's builder does.
+    """
+    import mujoco
+    import pytorch_kinematics as pk
+    import pytorch_kinematics.transforms as tf
+
+    try:
+        return pk.build_chain_from_mjcf(text)
+    except (KeyError, ValueError):
+        pass
+    types = {
+        int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
+        int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic",
+    }
+
+    def frame_of(b: int):
+        body = model.body(b)
+        link = pk.frame.Link(body.name, offset=tf.Transform3d(rot=body.quat, pos=body.pos))
+        if model.body_jntnum[b] == 1:
+            j = model.joint(int(model.body_jntadr[b]))
+            joint = pk.frame.Joint(
+                j.name,
+                offset=tf.Transform3d(pos=j.pos),
+                axis=j.axis,
+                joint_type=types[int(j.type[0])],
+                limits=(j.range[0], j.range[1]),
+            )
+        else:
+            joint = pk.frame.Joint(body.name + "_fixed_joint")
+        fr = pk.frame.Frame(name=body.name, link=link, joint=joint)
+        kids = [c for c in range(b + 1, model.nbody) if model.body_parentid[c] == b]
+        fr.children = [frame_of(c) for c in kids]
+        for s in range(model.nsite):
+            if model.site_bodyid[s] == b:
+                site = model.site(s)
+                fr.children.append(
+                    pk.frame.Frame(
+                        name=site.name,
+                        link=pk.frame.Link(
+                            site.name, offset=tf.Transform3d(rot=site.quat, pos=site.pos)
+                        ),
+                    )
+                )
+        return fr
+
+    root = model.body(0)
+    root_frame = pk.frame.Frame(
+        root.name,
+        link=pk.frame.Link(root.name, offset=tf.Transform3d(rot=root.quat, pos=root.pos)),
+        joint=pk.frame.Joint(),
+    )
+    root_frame.children = frame_of(0).children
+    return pk.chain.Chain(root_frame)
