@@ -24,3 +24,26 @@ def test_quick_start_runs_as_written(capsys):
     rms = float(capsys.readouterr().out.split()[0])
     tau = namespace["tau"]
     assert rms < 0.2 * float(tau.std())
+
+
+def test_the_python_version_of_the_command_runs_as_written(tmp_path, monkeypatch):
+    import warnings
+
+    from torchjfa.cli import main
+
+    text = README.read_text(encoding="utf-8")
+    match = re.search(
+        r"^From Python the command is one call.*?```python\n(.*?)^```$", text, re.S | re.M
+    )
+    assert match, "README.md has no python block for torchjfa.identify"
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "head", "--out", "log.csv", "--n-samples", "5040", "--quiet"]) == 0
+    namespace: dict = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the example says a warning may come
+        exec(compile(match.group(1), str(README), "exec"), namespace)
+    assert (tmp_path / "result" / "report.md").is_file()
+    assert namespace["ident"].identified_well
+    log = namespace["ident"].data.validation
+    tau = namespace["dynamics"](log.q, log.qd, log.qdd)
+    assert tau.shape == log.tau.shape
