@@ -120,7 +120,7 @@ class _JFABase(LinearEstimator):
         total, _ = as_folds(moments)
         if not float(total.n) > 0:
             raise ValueError("cannot fit on Moments with no samples (total weight 0)")
-        self._check_params()
+        self._check_params(total.n_features)
         d = total.n_features
         dev = total.xtx.device
         noise = self._input_noise(d, dev)
@@ -163,7 +163,7 @@ class _JFABase(LinearEstimator):
         return X @ self.coef_noisy_.to(X) + self.intercept_noisy_.to(X)
 
     # ------------------------------------------------------------------ internals
-    def _check_params(self) -> None:
+    def _check_params(self, n_features: int) -> None:
         if isinstance(self.max_iter, bool) or int(self.max_iter) != self.max_iter:
             raise TypeError(f"max_iter must be an integer, got {self.max_iter!r}")
         if self.max_iter < 1:
@@ -487,8 +487,8 @@ class BayesianJFA(_JFABase):
         self.b0 = b0
         self.ard = ard
 
-    def _check_params(self) -> None:
-        super()._check_params()
+    def _check_params(self, n_features: int) -> None:
+        super()._check_params(n_features)
         for name in ("a0", "b0"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and v > 0 and math.isfinite(v)):
