@@ -38,7 +38,13 @@ def _errors(prediction, target) -> tuple[torch.Tensor, torch.Tensor]:
     return (prediction.to(target) - target) ** 2, target
 
 
-def nmse(prediction: torch.Tensor, target: torch.Tensor, *, per_joint: bool = False):
+def nmse(
+    prediction: torch.Tensor,
+    target: torch.Tensor,
+    *,
+    per_joint: bool = False,
+    allow_constant: bool = False,
+):
     """Normalised mean squared error: per joint ``mean((pred - target)^2) / var(target)``.
 
     ``var`` is the target's variance about its mean, per joint, population (divisor ``n``);
@@ -48,6 +54,7 @@ def nmse(prediction: torch.Tensor, target: torch.Tensor, *, per_joint: bool = Fa
         prediction: ``(n, n_dof)`` (or ``(n,)``) predicted values, e.g. torques in N m.
         target: the same shape, the measured values, floating point.
         per_joint: return the ``(n_dof,)`` values instead of their mean.
+        allow_constant: give a constant target column ``inf`` instead of raising.
 
     Returns:
         A 0-d tensor (the mean over joints; for a 1-D target, its one value), or ``(n_dof,)``
@@ -55,14 +62,18 @@ def nmse(prediction: torch.Tensor, target: torch.Tensor, *, per_joint: bool = Fa
 
     Raises:
         TypeError: if an input is not a tensor, or the target is not floating point.
-        ValueError: on mismatched shapes or fewer than 2 samples.
+        ValueError: on mismatched shapes, fewer than 2 samples, or a constant target column
+            (its normalised error is undefined) unless ``allow_constant``.
 
-    A constant target column (a joint whose logged torque never changes) has no variance: its
-    nMSE is ``inf`` for any error (NaN for an exact prediction), so that a report still shows
-    it rather than failing.
+    With ``allow_constant`` a constant target column (a joint whose logged torque never
+    changes) gives ``inf`` for any error (NaN for an exact prediction), so that a report can
+    still show it rather than fail.
     """
     err2, target = _errors(prediction, target)
-    per = err2.mean(0) / target.var(0, unbiased=False)
+    var = target.var(0, unbiased=False)
+    if not allow_constant and not bool((var > 0).all()):
+        raise ValueError("a target column is constant; its normalised error is undefined")
+    per = err2.mean(0) / var
     return per if per_joint else per.mean()
 
 

@@ -78,7 +78,8 @@ def torque_errors(tau, predicted) -> tuple[torch.Tensor, torch.Tensor]:
     """
     tau = torch.as_tensor(tau, dtype=torch.float64)
     predicted = torch.as_tensor(predicted, dtype=torch.float64)
-    return nmse(predicted, tau, per_joint=True), rms(predicted, tau, per_joint=True)
+    errors = nmse(predicted, tau, per_joint=True, allow_constant=True)  # inf: no variance
+    return errors, rms(predicted, tau, per_joint=True)
 
 
 def predicted_torques(model, theta, q, qd, qdd, tau) -> torch.Tensor:
