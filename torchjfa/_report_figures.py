@@ -139,6 +139,65 @@ def parameters_figure(rows, flags, path=None):
     n = len(rows)
     x = np.arange(n)
     excited = np.array([r["excited"] for r in rows])
+    y, bad, floor, ylabel, title, has_spread = _spread_ratios(rows, flags)
+    plotted = excited & ~bad
+    low, top = _y_range(y, plotted, floor)
+    foot = low * 1.6  # where the marks of undetermined parameters sit
+
+    fig, axes = _figure(path, 1, figsize=(max(8.0, 0.09 * n + 4.0), 4.2))
+    ax = axes[0, 0]
+    groups = _body_groups(names)
+    for _, first, _ in groups[1:]:
+        ax.axvline(first - 0.5, color="0.8", lw=0.8, zorder=0)
+    kinds = np.array([_kind_group(parameter_kind(nm)) for nm in names])
+    handles = []
+    for kind, (label, color, marker) in _KIND_STYLE.items():
+        sel = plotted & (kinds == kind)
+        if not sel.any():
+            continue
+        ax.vlines(x[sel], low, np.clip(y[sel], low, top), color=color, lw=1.0, alpha=0.5)
+        yk = np.clip(y[sel], low, top)
+        ax.scatter(
+            x[sel], yk, color=color, marker=marker, s=22, zorder=3, clip_on=False, label=label
+        )
+        handles.append(Line2D([], [], color=color, marker=marker, ls="", markersize=5, label=label))
+    above = plotted & (y > top)
+    if above.any():
+        label = f"beyond the axis ({int(above.sum())}): above {top:.0e}"
+        _mark(ax, handles, x, above, top, label, "k", 6, 40, zorder=4, clip_on=False)
+    if has_spread:
+        label = "2 spreads: below it, not told from 0"
+        ax.axhline(2.0, color="C3", lw=0.9, ls="--", label=label)
+        handles.append(Line2D([], [], color="C3", lw=0.9, ls="--", label=label))
+    silent = ~excited
+    if silent.any():
+        label = f"not excited ({int(silent.sum())}): zero regressor column, no data"
+        _mark(ax, handles, x, silent, foot, label, "0.55", "x", 18, zorder=3)
+    flagged = excited & bad
+    if flagged.any():
+        label = f"undetermined ({int(flagged.sum())}): beyond any physical scale"
+        _mark(ax, handles, x, flagged, foot, label, "k", "$?$", 30, zorder=3)
+    rel = np.array([np.nan if r["relevance"] is None else r["relevance"] for r in rows])
+    if np.isfinite(rel).any():
+        at = np.where(plotted, np.clip(y, low, top), foot)
+        _ring_irrelevant(ax, handles, x, at, rel, excited)
+    _label_axes(ax, groups, n, (low, top), ylabel, title)
+    ax.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False
+    )
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def _spread_ratios(rows, flags):
+    """The parameters figure's heights: ``(y, bad, floor, ylabel, title, has_spread)``.
+
+    ``y``: ``(n_params,)`` ``|unconstrained| / spread`` (the jackknife spread, else the
+    posterior's), or ``|identified|`` without any spread; NaN (0 / 0) and a zero spread read 0
+    (an estimate pruned to ~0, drawn at the foot). ``bad``: ``(n_params,)`` bool, the entries
+    `undetermined` flags; ``floor``: the lowest height the axis goes down to.
+    """
     value = np.array([np.nan if r["unconstrained"] is None else r["unconstrained"] for r in rows])
     spread, spread_name = None, None
     for key, label in (("jackknife_std", "jackknife"), ("posterior_std", "posterior")):
@@ -163,81 +222,60 @@ def parameters_figure(rows, flags, path=None):
         y = np.abs(np.array([r["identified"] for r in rows], dtype=float))
         ylabel = "|identified value| (SI units)"
         title = "Identified parameters (no spread: run with a jackknife for one)"
-    plotted = excited & ~bad
     # 0 / 0, or x / 0 (every refit the same): an estimate pruned to ~0, drawn at the foot
     y = np.where(np.isnan(y) | (spread == 0 if spread is not None else False), 0.0, y)
+    return y, bad, floor, ylabel, title, spread is not None
+
+
+def _y_range(y, plotted, floor: float) -> tuple[float, float]:
+    """``(low, top)`` of the log axis: decades around the plotted positive heights, at least
+    0.1 to 30 (1.5 x the largest), at most `_TOP`."""
     sized = plotted & np.isfinite(y) & (y > 0)
-    if sized.any():
-        top = 10 ** np.ceil(np.log10(max(y[sized].max() * 1.5, 30.0)))
-        top = min(top, _TOP)  # a ratio of two numbers near 0 (a pruned parameter) is noise
-        low = 10 ** np.floor(np.log10(max(y[sized].min(), floor)))
-        low = min(low, 0.1)
-    else:
-        top, low = 100.0, 0.1
-    foot = low * 1.6  # where the marks of undetermined parameters sit
+    if not sized.any():
+        return 0.1, 100.0
+    top = 10 ** np.ceil(np.log10(max(y[sized].max() * 1.5, 30.0)))
+    top = min(top, _TOP)  # a ratio of two numbers near 0 (a pruned parameter) is noise
+    low = 10 ** np.floor(np.log10(max(y[sized].min(), floor)))
+    return min(low, 0.1), top
 
-    fig, axes = _figure(path, 1, figsize=(max(8.0, 0.09 * n + 4.0), 4.2))
-    ax = axes[0, 0]
-    groups = _body_groups(names)
-    for _, first, _ in groups[1:]:
-        ax.axvline(first - 0.5, color="0.8", lw=0.8, zorder=0)
-    kinds = np.array([_kind_group(parameter_kind(nm)) for nm in names])
-    handles = []
-    for kind, (label, color, marker) in _KIND_STYLE.items():
-        sel = plotted & (kinds == kind)
-        if not sel.any():
-            continue
-        ax.vlines(x[sel], low, np.clip(y[sel], low, top), color=color, lw=1.0, alpha=0.5)
-        yk = np.clip(y[sel], low, top)
+
+def _mark(ax, handles, x, where, at, label, color, marker, size, **kw) -> None:
+    """Scatter a marker at height ``at`` for the parameters ``where``, with a legend entry."""
+    from matplotlib.lines import Line2D
+
+    ax.scatter(x[where], np.full(where.sum(), at), color=color, marker=marker, s=size,
+               label=label, **kw)  # fmt: skip
+    handles.append(Line2D([], [], color=color, marker=marker, ls="", label=label))
+
+
+def _ring_irrelevant(ax, handles, x, at, rel, excited) -> None:
+    """Ring the parameters whose relevance ``rel`` (Bayesian JFA's ``<alpha>``) is above 100
+    times the median (of the excited ones), at their heights ``at``; always a legend entry."""
+    from matplotlib.lines import Line2D
+
+    median = np.nanmedian(rel[excited]) if excited.any() else np.nanmedian(rel)
+    called = excited & np.isfinite(rel) & (rel > 100 * median)
+    label = f"called irrelevant by Bayesian JFA ({int(called.sum())}): <alpha> > 100 x median"
+    if called.any():
         ax.scatter(
-            x[sel], yk, color=color, marker=marker, s=22, zorder=3, clip_on=False, label=label
+            x[called],
+            at[called],
+            facecolors="none",
+            edgecolors="k",
+            s=90,
+            lw=1.0,
+            zorder=4,
+            label=label,
         )
-        handles.append(Line2D([], [], color=color, marker=marker, ls="", markersize=5, label=label))
+    handles.append(
+        Line2D([], [], color="k", marker="o", mfc="none", ls="", markersize=8, label=label)
+    )
 
-    def mark(where, at, label, color, marker, size, **kw):
-        """Scatter a marker at height ``at`` for the parameters ``where``, with a legend entry."""
-        ax.scatter(x[where], np.full(where.sum(), at), color=color, marker=marker, s=size,
-                   label=label, **kw)  # fmt: skip
-        handles.append(Line2D([], [], color=color, marker=marker, ls="", label=label))
 
-    above = plotted & (y > top)
-    if above.any():
-        label = f"beyond the axis ({int(above.sum())}): above {top:.0e}"
-        mark(above, top, label, "k", 6, 40, zorder=4, clip_on=False)
-    if spread is not None:
-        label = "2 spreads: below it, not told from 0"
-        ax.axhline(2.0, color="C3", lw=0.9, ls="--", label=label)
-        handles.append(Line2D([], [], color="C3", lw=0.9, ls="--", label=label))
-    silent = ~excited
-    if silent.any():
-        label = f"not excited ({int(silent.sum())}): zero regressor column, no data"
-        mark(silent, foot, label, "0.55", "x", 18, zorder=3)
-    flagged = excited & bad
-    if flagged.any():
-        label = f"undetermined ({int(flagged.sum())}): beyond any physical scale"
-        mark(flagged, foot, label, "k", "$?$", 30, zorder=3)
-    rel = np.array([np.nan if r["relevance"] is None else r["relevance"] for r in rows])
-    if np.isfinite(rel).any():
-        median = np.nanmedian(rel[excited]) if excited.any() else np.nanmedian(rel)
-        called = excited & np.isfinite(rel) & (rel > 100 * median)
-        label = f"called irrelevant by Bayesian JFA ({int(called.sum())}): <alpha> > 100 x median"
-        if called.any():
-            at = np.where(plotted, np.clip(y, low, top), foot)[called]
-            ax.scatter(
-                x[called],
-                at,
-                facecolors="none",
-                edgecolors="k",
-                s=90,
-                lw=1.0,
-                zorder=4,
-                label=label,
-            )
-        handles.append(
-            Line2D([], [], color="k", marker="o", mfc="none", ls="", markersize=8, label=label)
-        )
+def _label_axes(ax, groups, n: int, ylim: tuple[float, float], ylabel: str, title: str) -> None:
+    """The log y axis over ``ylim``, one x tick per body group, the labels and the title."""
     ax.set_yscale("log")
-    ax.set_ylim(low, top)
+    ax.set_ylim(*ylim)
     ax.set_xlim(-0.7, n - 0.3)
     ax.set_xticks(
         [(first + stop - 1) / 2 for _, first, stop in groups],
@@ -250,9 +288,3 @@ def parameters_figure(rows, flags, path=None):
     ax.set_xlabel("parameters, grouped by the body each joint moves", fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
     ax.set_title(title, fontsize=9)
-    ax.legend(
-        handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False
-    )
-    if path is not None:
-        fig.savefig(path, dpi=110)
-    return fig

@@ -8,7 +8,8 @@ A thin shell over `torchjfa.data` (read and prepare the log), `torchjfa.identify
 estimator, projection) and `torchjfa.report` (held-out errors, tables, figures). Bad input
 (a missing column, an unknown joint, NaN rows, time going backwards, too few samples, a robot
 file that does not parse) ends with one line on stderr and exit status 2, not a traceback;
-``--debug`` shows the traceback.
+``--debug`` shows the traceback. The ``identify`` sub-command (its parser and options) is in
+`torchjfa._cli_identify`; ``excite``'s in `torchjfa.excitation._cli`.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import shlex
 import sys
 from pathlib import Path
 
+from ._cli_identify import add_identify
+from ._cli_identify import identify_options as identify_options
 from .estimators import available as _estimators
-from .identification._options import JOINT_TERMS as _FRICTION
 from .identification._options import IdentificationError
 from .sim import ROBOTS
 
@@ -70,164 +72,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 # ------------------------------------------------------------------------------ helpers
-def _friction(text: str) -> tuple[str, ...]:
-    if text.strip().lower() in ("", "none"):
-        return ()
-    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
-    bad = [k for k in kinds if k not in _FRICTION]
-    if bad:
-        raise argparse.ArgumentTypeError(f"unknown friction term(s) {bad}; choose from {_FRICTION}")
-    return kinds
-
-
-def _columns(text: str | None) -> dict[str, str] | None:
-    """``ours=theirs,...`` or a JSON file/object mapping the library's names to the log's."""
-    if not text:
-        return None
-    if os.path.isfile(text):
-        text = Path(text).read_text()
-    text = text.strip()
-    if text.startswith("{"):
-        try:
-            mapping = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise UsageError(f"--columns: not valid JSON: {exc}") from None
-    else:
-        mapping = {}
-        for item in text.split(","):
-            if "=" not in item:
-                raise UsageError(f"--columns: expected ours=theirs pairs, got {item!r}")
-            k, v = item.split("=", 1)
-            mapping[k.strip()] = v.strip()
-    if not isinstance(mapping, dict):
-        raise UsageError("--columns must map the library's column names to the log's")
-    return {str(k): str(v) for k, v in mapping.items()}
-
-
 def load_model(robot: str, friction: tuple[str, ...]):
     """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name
     (`torchjfa.identification.load_model`)."""
     from .identification import load_model as load
 
     return load(robot, friction)
-
-
-def _period(text: str):
-    if text in ("auto", "none"):
-        return None if text == "none" else "auto"
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto', 'none' or seconds, got {text!r}"
-        ) from None
-
-
-def _cutoff(text: str):
-    if text == "auto":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto' or a positive cut-off in Hz, got {text!r}"
-        )
-    return value
-
-
-def _prior_weight(text: str):
-    """``--description-prior``: ``auto`` or a weight >= 0."""
-    if text == "auto":
-        return "auto"
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected 'auto' or a weight >= 0, got {text!r}")
-    return value
-
-
-def _skip(text: str):
-    if text == "auto":
-        return text
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'auto' or seconds, got {text!r}") from None
-
-
-# ------------------------------------------------------------------------------ identify
-def identify_options(args):
-    """The `torchjfa.identification.Options` that ``torchjfa identify``'s arguments give."""
-    from .identification import Compute, Options
-
-    estimator_options = {}
-    if args.estimator in ("bayes-jfa", "jfa"):
-        estimator_options["max_iter"] = args.max_iter
-    if args.estimator == "bayes-jfa":
-        estimator_options["ard"] = args.ard
-    return Options(
-        friction=args.friction,
-        columns=_columns(args.columns),
-        time_scale=args.time_scale,
-        drop_nan=args.drop_nan,
-        max_seconds=args.smoke_seconds if args.smoke else None,
-        cutoff=args.cutoff,
-        filter=args.filter,
-        velocity=args.velocity,
-        period=args.period,
-        skip_start=args.skip_start,
-        decimate=args.decimate,
-        validation=args.validation,
-        estimator=args.estimator,
-        estimator_options=estimator_options,
-        weighting=args.weighting,
-        input_noise=args.input_noise,
-        jackknife=args.jackknife,
-        project=not args.no_project,
-        parametrization=args.parametrization,
-        description_prior=args.description_prior,
-        compute=Compute(progress=not args.quiet, compiled=args.compiled),
-    )
-
-
-def cmd_identify(args) -> int:
-    import warnings
-
-    from .identification import IdentificationWarning, identify
-
-    if args.no_project and args.description_prior is not None:
-        raise UsageError("--description-prior acts in the projection: drop --no-project")
-    command = "torchjfa " + " ".join(shlex.quote(a) for a in args.argv)
-    with warnings.catch_warnings():  # printed below, after the report's path
-        warnings.simplefilter("ignore", IdentificationWarning)
-        ident = identify(
-            args.robot,
-            args.log,
-            identify_options(args),
-            validation_log=args.validation_log,
-            settings={"command": command},
-        )
-    paths = ident.write(args.out, plots=not args.no_plots)
-    for line in ident.headline():
-        print(line)
-    est = ident.result.estimator
-    if not getattr(est, "converged_", True):
-        print(
-            f"warning: {type(est).__name__} stopped at --max-iter {args.max_iter} before its "
-            f"stopping rule held ({est.stop_reason_}); compare the held-out errors with "
-            "--estimator ols, or raise --max-iter",
-            file=sys.stderr,
-        )
-    print(f"report: {paths['markdown']}")
-    for w in ident.warnings:
-        print(f"warning: {w}", file=sys.stderr)
-    if ident.problem():
-        raise UsageError(f"{ident.problem()} (report written to {paths['markdown']})")
-    return 0
 
 
 # ------------------------------------------------------------------------------ simulate
@@ -343,8 +193,8 @@ def cmd_evaluate(args) -> int:
 
 # ------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
-    from .data import DEFAULT_CUTOFF_HZ
-
+    """The ``torchjfa`` parser: ``identify``, ``simulate``, ``excite`` and ``evaluate``, each
+    sub-command's parser set to run its ``cmd_*``."""
     parser = _Parser(
         prog="torchjfa",
         description="Probabilistic identification of robot dynamics (Bayesian joint factor "
@@ -353,155 +203,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser(
-        "identify",
-        help="identify a robot's parameters from a log and write a report",
-        description="Read a joint log (CSV, NPZ, Parquet), filter and differentiate it, "
-        "identify the rigid-body and friction parameters, project them onto physically "
-        "consistent ones, and write the model, tables, figures and a Markdown report.",
-    )
-    p.add_argument(
-        "robot",
-        help="URDF or MJCF file, or a shipped robot: panda, panda_arm, branched_tree, head, arm",
-    )
-    p.add_argument(
-        "log",
-        help="the log: .csv, .npz or .parquet with columns t, q_<joint>, [qd_<joint>], tau_<joint>",
-    )
-    p.add_argument("--out", default="result", help="output folder")
-    p.add_argument(
-        "--estimator",
-        choices=_estimators(),
-        default="ols",
-        help="the estimator (OLS by default: on the real Panda log of docs/real-robot.md it "
-        "predicts held-out torques better than Bayesian JFA)",
-    )
-    p.add_argument(
-        "--friction",
-        type=_friction,
-        default=("viscous", "coulomb", "offset"),
-        help="joint terms, comma separated from viscous,coulomb,offset (friction) and armature "
-        "(reflected motor inertia), or 'none'",
-    )
-    p.add_argument(
-        "--columns",
-        default=None,
-        help="map the library's column names to the log's: 't=time,q_j1=pos1' or a "
-        "JSON object or file",
-    )
-    p.add_argument(
-        "--time-scale",
-        type=float,
-        default=1.0,
-        help="seconds per unit of the time column, e.g. 1e-9 for ns",
-    )
-    p.add_argument(
-        "--drop-nan",
-        action="store_true",
-        help="drop rows holding NaN (default: report them and stop)",
-    )
-    p.add_argument(
-        "--cutoff",
-        type=_cutoff,
-        default="auto",
-        help="low-pass cut-off, Hz, or 'auto': the one of 2..30 Hz that predicts held-out "
-        "torques best inside the training part (torchjfa.data.choose_cutoff; "
-        f"{DEFAULT_CUTOFF_HZ:g} Hz, with a warning, where the log is too short to choose)",
-    )
-    p.add_argument(
-        "--filter",
-        choices=("butterworth", "savgol"),
-        default="butterworth",
-        help="zero-phase low-pass filter: Butterworth (order 4) or Savitzky-Golay",
-    )
-    p.add_argument(
-        "--velocity",
-        choices=("auto", "measured", "differentiate"),
-        default="auto",
-        help="use the log's velocities ('measured'), differentiate the positions, or 'auto': "
-        "the log's velocities if it has them",
-    )
-    p.add_argument(
-        "--period",
-        type=_period,
-        default="auto",
-        help="excitation period in s, 'auto' (detect) or 'none'",
-    )
-    p.add_argument(
-        "--skip-start",
-        type=_skip,
-        default=0.0,
-        help="seconds of start-up transient to drop, or 'auto', which needs a period",
-    )
-    p.add_argument("--decimate", type=int, default=1, help="keep every k-th sample after filtering")
-    p.add_argument(
-        "--validation",
-        type=float,
-        default=0.2,
-        help="held-out fraction at the end of the log",
-    )
-    p.add_argument("--validation-log", default=None, help="hold out this log instead")
-    p.add_argument(
-        "--input-noise",
-        choices=("auto", "learn", "periods"),
-        default="auto",
-        help="Bayesian JFA's input noise: fixed to the spread between excitation periods "
-        "('periods'), learned ('learn': the seed's estimator, whose eq. 4 the data do not "
-        "identify), or 'auto': periods when the training data hold two or more",
-    )
-    p.add_argument(
-        "--jackknife",
-        type=int,
-        default=5,
-        help="blocks for the jackknife spread of the parameters, 0 for none",
-    )
-    p.add_argument(
-        "--weighting",
-        choices=("residual", "none"),
-        default="residual",
-        help="weight each joint's equations by its inverse residual variance from a first "
-        "least-squares fit (weighted least squares), or not at all",
-    )
-    p.add_argument(
-        "--parametrization",
-        choices=("virtual", "log-cholesky"),
-        default="log-cholesky",
-        help="the projection's parameters: the seed's virtual parameters (mass > 0, inertia "
-        "PSD) or log-Cholesky, fully consistent (triangle inequalities too)",
-    )
-    p.add_argument("--no-project", action="store_true", help="skip the physical projection")
-    p.add_argument(
-        "--description-prior",
-        type=_prior_weight,
-        default=None,
-        help="pull the projection towards the description where the data are silent: a "
-        "weight >= 0 (prior std = a typical value of each kind / sqrt(weight)) or 'auto' "
-        "(chosen on a held-out block of the training data); default off",
-    )
-    p.add_argument(
-        "--max-iter", type=int, default=20_000, help="most EM iterations of JFA and Bayesian JFA"
-    )
-    p.add_argument(
-        "--ard",
-        choices=("shared", "output"),
-        default="shared",
-        help="Bayesian JFA's relevance prior: on both loadings (the paper) or on the output "
-        "loading alone, better with --input-noise (see BayesianJFA)",
-    )
-    p.add_argument(
-        "--compiled",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="form the regressor with a C++ kernel generated for the robot (several times "
-        "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
-        "found, else the torch path",
-    )
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
-    p.add_argument("--smoke", action="store_true", help="quick check: the first seconds only")
-    p.add_argument("--smoke-seconds", type=float, default=12.0, help=argparse.SUPPRESS)
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_identify)
+    add_identify(sub)
+    _add_simulate(sub)
+    from .excitation._cli import add_parser as add_excite_parser
 
+    add_excite_parser(sub).set_defaults(func=cmd_excite)
+
+    _add_evaluate(sub)
+    return parser
+
+
+def _add_simulate(sub) -> argparse.ArgumentParser:
+    """The ``simulate`` sub-command's parser (runs `cmd_simulate`)."""
     p = sub.add_parser(
         "simulate",
         help="simulate a robot tracking an excitation and write its log",
@@ -533,11 +246,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="track this trajectory.npz from torchjfa excite (default: a random excitation)",
     )
     p.set_defaults(func=cmd_simulate)
+    return p
 
-    from .excitation._cli import add_parser as add_excite_parser
 
-    add_excite_parser(sub).set_defaults(func=cmd_excite)
-
+def _add_evaluate(sub) -> argparse.ArgumentParser:
+    """The ``evaluate`` sub-command's parser (runs `cmd_evaluate`)."""
     p = sub.add_parser(
         "evaluate",
         help="evaluate an identified model on a simulated robot",
@@ -555,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default=None, help="also write the numbers to this JSON file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
-    return parser
+    return p
 
 
 def main(argv=None) -> int:

@@ -31,10 +31,16 @@ import numpy as np
 import torch
 
 from ._report_figures import parameters_figure, torques_figure
+from ._report_markdown import (
+    UNDETERMINED_FACTOR,
+    estimator_text,
+    report_markdown,
+    undetermined,
+    verdict,
+)
 from .data import JointLog
 from .metrics import nmse, rms
 from .physical import BaseParameters, ConsistencyReport, base_parameters, check
-from .physical._base import parameter_kind
 from .pipeline import IdentificationResult
 
 __all__ = [
@@ -103,105 +109,6 @@ def _numbers(v) -> list:
     for x in torch.as_tensor(v, dtype=torch.float64).reshape(-1).tolist():
         out.append(x if math.isfinite(x) else None)
     return out
-
-
-def _setting(value) -> str:
-    """One estimator setting, short: a per-column tensor as its size and median, not its
-    entries."""
-    if isinstance(value, (torch.Tensor, np.ndarray)):
-        v = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
-        if v.numel() == 1:
-            return f"{float(v):.4g}"
-        zeros = int((v == 0).sum())
-        text = f"given: {v.numel()} columns, median {float(v.median()):.2g}"
-        return "(" + text + (f", {zeros} of them 0" if zeros else "") + ")"
-    if isinstance(value, float):
-        return f"{value:g}"
-    return repr(value)
-
-
-def estimator_text(est) -> str:
-    """The estimator's name and settings on one line, e.g. ``BayesianJFA(max_iter=20000, ...,
-    input_noise=(given: 84 columns, median 0.00031, 10 of them 0))``: arrays summarised (`repr`
-    would print every entry)."""
-    params = ", ".join(
-        f"{k}={_setting(v)}" for k, v in vars(est).items() if not k.endswith("_") and k[0] != "_"
-    )
-    return f"{type(est).__name__}({params})"
-
-
-_NOISE_MODES = {
-    "periods": "fixed to the spread between excitation periods",
-    "learn": "learned by the estimator",
-}
-
-
-def _convergence(est) -> tuple[str, str | None]:
-    """``(line, warning)``: the estimator's iterations and whether its stopping rule held, and a
-    warning when it did not (None when it did or the estimator is not iterative)."""
-    name = type(est).__name__
-    if not hasattr(est, "converged_"):
-        if hasattr(est, "n_iter_"):
-            return f"{int(est.n_iter_)} iterations (no convergence flag)", None
-        return "closed form (no iterations)", None
-    n_iter = int(getattr(est, "n_iter_", -1))
-    reason = getattr(est, "stop_reason_", None)
-    if est.converged_:
-        return f"{n_iter} iterations, converged: yes (stopping rule: {reason})", None
-    cap = getattr(est, "max_iter", None)
-    return (
-        f"{n_iter} iterations, converged: **no** (stopped by {reason})",
-        f"**Warning: {name} did not converge**: it stopped at its iteration cap"
-        + (f" (max_iter={cap})" if cap is not None else "")
-        + " before its stopping rule held, so its estimates may be far from the optimum; "
-        "compare the held-out errors with `--estimator ols`, or raise `--max-iter`.",
-    )
-
-
-# the unit value of each parameter kind (kg, kg m, kg m^2, N m s/rad, N m): a floor under the
-# description's scale, so that a description with (near-)zero masses still has a scale
-_UNIT_SCALE = 1.0
-UNDETERMINED_FACTOR = 1e6  # |value| above this x the kind's scale is beyond any physical scale
-
-
-def undetermined(values, names, description) -> torch.Tensor:
-    """Which ``values`` lie beyond any physical scale: not finite, or larger in magnitude than
-    `UNDETERMINED_FACTOR` times their kind's scale, the largest ``|description|`` value of that
-    kind (at least 1 in SI units, so that a description with near-zero masses does not make
-    every value look unphysical).
-
-    Args:
-        values: ``(n_params,)`` values (unconstrained estimates, spreads), NaN allowed.
-        names: the ``n_params`` parameter names (``joint.m``, ``joint.Ixx``, ``joint.fv``, ...).
-        description: ``(n_params,)`` the description's parameters.
-
-    Returns:
-        ``(n_params,)`` bool, True where the value should read "undetermined".
-    """
-    v = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
-    d = torch.as_tensor(description, dtype=torch.float64).reshape(-1).abs()
-    kinds = [parameter_kind(n) for n in names]
-    scale = {k: _UNIT_SCALE for k in kinds}
-    for k, x in zip(kinds, d.tolist(), strict=True):
-        if math.isfinite(x):
-            scale[k] = max(scale[k], x)
-    bound = torch.tensor([UNDETERMINED_FACTOR * scale[k] for k in kinds], dtype=torch.float64)
-    return ~torch.isfinite(v) | (v.abs() > bound)
-
-
-def verdict(c: ConsistencyReport) -> str:
-    """One verdict, the consistency table's own ("yes"/"no", bodies failing of all), with why."""
-    n = len(c.joint_names)
-    if c.ok:
-        return f"yes (all {n} bodies: pseudo-inertia positive definite, friction >= 0)"
-    n_bad = int((~c.body_ok).sum())
-    if c.weakly_ok:
-        return (
-            f"no ({n_bad} of {n} bodies fail: the triangle inequalities or a positive "
-            "definite pseudo-inertia; mass > 0 and inertia PSD, the seed's eq. 5, hold; "
-            "--parametrization log-cholesky enforces all)"
-        )
-    return f"no ({n_bad} of {n} bodies fail)"
 
 
 @dataclass(eq=False)
@@ -316,78 +223,6 @@ class IdentificationReport:
             )
         return rows
 
-    def _base_markdown(self) -> list[str]:
-        """The section "What the data determine" (`base_parameters` of the training data)."""
-        b = self.base
-        lines = ["## What the data determine", ""]
-        if b is None:
-            return lines + ["The training data excite no parameter.", ""]
-        c = b.counts()
-        lines += [
-            f"- base (identifiable) parameters: **{b.rank}** of {b.n_params}; "
-            f"{b.n_determined} of them determined to {b.resolution:g} of their physical scale "
-            f"by this log (residual noise std {math.sqrt(max(b.noise_var, 0.0)):.3g} per row)",
-            f"- condition number of the column-scaled base regression: {b.condition_number:.3g}",
-            f"- parameters: {c['determined']} determined alone, {c['combination']} only in "
-            f"combination with others (their single values are not determined: read the "
-            f"combinations below), {c['poorly excited']} poorly excited (identifiable, but this "
-            f"log leaves them to the noise), {c['not excited']} not excited (zero regressor "
-            "column)",
-            "",
-            "Base parameters that combine several parameters (each is `first + sum coef x "
-            "other`; the data determine the combination, not its terms); std: least squares "
-            "(white noise, a lower bound); jackknife: delete-one-block spread.",
-            "",
-            "| base parameter | identified | unconstrained | std | jackknife std |",
-            "|---|---|---|---|---|",
-        ]
-        n = 0
-        for k, row in enumerate(self.base_rows()):
-            if " + " not in row["combination"] and " - " not in row["combination"]:
-                continue
-            n += 1
-            # beyond any physical scale (as in the parameter table): the first term's scale
-            bound = UNDETERMINED_FACTOR * max(float(b.scales[b.independent[k]]), _UNIT_SCALE)
-            cells = []
-            for key, fmt in (
-                ("identified", ".4g"),
-                ("unconstrained", ".4g"),
-                ("ls_std", ".3g"),
-                ("jackknife_std", ".3g"),
-            ):
-                v = row[key]
-                if v is None:
-                    cells.append("-")
-                elif not math.isfinite(v) or abs(v) > bound:
-                    cells.append("undetermined")
-                else:
-                    cells.append(format(v, fmt))
-            lines.append(f"| {row['combination']} | " + " | ".join(cells) + " |")
-        if not n:
-            lines.append("| (none: every base parameter is a single parameter) | | | | |")
-        r = self.result
-        if r.prior_weight is not None:
-            how = ""
-            if r.prior_choice:
-                how = (
-                    " (chosen by cross-validation over the training blocks: "
-                    + ", ".join(f"{w:g}: {v:.4g} N m" for w, v in r.prior_choice.items())
-                    + ")"
-                )
-            edge = ""
-            if r.prior_choice and r.prior_weight == max(r.prior_choice) > 0:
-                edge = (
-                    " The largest weight tried won: the held-out blocks prefer the description "
-                    "even where the data have a say (prior std = each kind's typical size / "
-                    f"{math.sqrt(r.prior_weight):.3g})."
-                )
-            lines += [
-                "",
-                f"Where the data are silent the projection was pulled towards the description "
-                f"with weight {r.prior_weight:g}{how}.{edge}",
-            ]
-        return lines + [""]
-
     def summary(self) -> dict[str, object]:
         """The report's numbers as plain JSON-ready values."""
         r = self.result
@@ -442,139 +277,10 @@ class IdentificationReport:
         return parameters_figure(self.parameter_rows(), self.undetermined_entries(), path)
 
     # ------------------------------------------------------------------------- writing
-    def _noise_mode(self) -> str:
-        """``"; input noise: ..."`` from the settings' input-noise mode ("" without one)."""
-        mode = self.settings.get("input_noise")
-        if not mode:
-            return ""
-        text = _NOISE_MODES.get(str(mode), str(mode))
-        if not hasattr(self.result.estimator, "input_noise"):  # OLS, ridge, ...: projection only
-            return f"; input noise ({text}) used in the projection's metric only"
-        return f"; input noise: {text}"
-
     def markdown(self, images: Mapping[str, str] | None = None) -> str:
-        """The report as Markdown (``images``: caption -> relative PNG path)."""
-        s = self.summary()
-        joints = self.model.joint_names
-        convergence, warning = _convergence(self.result.estimator)
-        lines = [
-            f"# Identification report: {s['robot'] or Path(self.model.source_path or 'robot').name}",
-            "",
-            f"- log: `{self.settings.get('log', '-')}`; {s['train_samples']} samples for "
-            f"identification, {s['validation_samples']} held out"
-            + (f" ({self.settings['validation']})" if self.settings.get("validation") else ""),
-            *(
-                [f"- data: {self.settings['preparation']}"]
-                if self.settings.get("preparation")
-                else []
-            ),
-            *([f"- cut-off: {self.settings['cutoff']}"] if self.settings.get("cutoff") else []),
-            f"- model: {self.model.n_dof} joints, {self.model.n_params} parameters, friction "
-            f"{', '.join(self.model.friction) or 'none'}",
-            f"- estimator: `{s['estimator']}`" + self._noise_mode(),
-            f"- convergence: {convergence}",
-            *([f"- {warning}"] if warning else []),
-            *(f"- warning: {w}" for w in self.settings.get("warnings", ())),
-            f"- physically consistent, identified: {verdict(self.consistency)}; "
-            f"unconstrained estimate: {verdict(self.consistency_unconstrained)}",
-            f"- training RMS torque error: {s['train_rmse']:.4g} N m",
-            "",
-            "## Held-out torque prediction",
-            "",
-            "nMSE = mean squared error / variance of the measured torque (0 is perfect, 1 is "
-            "no better than the mean); RMS in N m.",
-            "",
-        ]
-        names = list(self.fits)
-        head = "| joint | " + " | ".join(f"{n} nMSE | {n} RMS" for n in names) + " |"
-        lines += [head, "|---" * (1 + 2 * len(names)) + "|"]
-        for j, jn in enumerate(joints):
-            cells = []
-            for n in names:
-                f = self.fits[n]
-                cells += [f"{float(f.nmse[j]):.4g}", f"{float(f.rms[j]):.4g}"]
-            lines.append(f"| {jn} | " + " | ".join(cells) + " |")
-        means = []
-        for n in names:
-            f = self.fits[n]
-            means += [f"**{f.mean_nmse:.4g}**", f"**{float(f.rms.pow(2).mean().sqrt()):.4g}**"]
-        lines.append("| all | " + " | ".join(means) + " |")
-        lines += [
-            "",
-            "all: nMSE is the mean over the joints; RMS is the quadratic mean over the joints, "
-            "sqrt(mean of the squared per-joint RMS), in N m.",
-        ]
-        lines += ["", "## Noise", ""]
-        for k, v in self.noise.items():
-            if isinstance(v, list):
-                v = ", ".join("-" if x is None else f"{x:.3g}" for x in v)
-            lines.append(f"- {k}: {v}")
-        lines += ["", "## Physical consistency of the identified parameters", "", "```"]
-        lines += [self.consistency.table(), "```", ""]
-        lines += self._base_markdown()
-        lines += [
-            "## Parameters",
-            "",
-            "identified: the physically consistent parameters (saved in `model.npz`); "
-            "unconstrained: the estimator's; jackknife std: spread of the unconstrained "
-            "estimate over delete-one-block refits; posterior std: Bayesian JFA's mean-field "
-            "spread (a lower bound, see docs/report.md); relevance: Bayesian JFA's <alpha> "
-            "(large means the data call the parameter irrelevant); description: the robot "
-            "file's value; data: what the data determine (see above: determined, combination, "
-            "poorly excited, zero column). Units: kg, kg m, "
-            "kg m^2, N m s/rad, N m.",
-            "",
-            "| parameter | identified | unconstrained | jackknife std | posterior std | "
-            "relevance | description | data |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
-
-        rows = s["parameters"]
-        value_cols = ("identified", "unconstrained", "jackknife_std", "posterior_std")
-        flagged = self.undetermined_entries()
-        n_flagged = n_silent = 0
-        for i, row in enumerate(rows):
-            cells = []
-            for k in (*value_cols, "relevance", "description"):
-                v = row[k]
-                if not row["excited"] and k in ("unconstrained", "jackknife_std", "posterior_std"):
-                    cells.append("not excited" if k == "unconstrained" else "-")
-                elif k in flagged and bool(flagged[k][i]):
-                    cells.append("undetermined")
-                    n_flagged += 1
-                elif v is None:
-                    cells.append("-")
-                else:
-                    cells.append(f"{v:.4g}")
-            n_silent += not row["excited"]
-            # "zero column": the data column's word for base_parameters' "not excited" (which
-            # also counts columns that are zero up to rounding)
-            cells.append({"not excited": "zero column"}.get(row["data"], row["data"] or "-"))
-            lines.append(f"| {row['parameter']} | " + " | ".join(cells) + " |")
-        if n_silent:
-            lines += [
-                "",
-                f"not excited ({n_silent} parameters): the parameter's regressor column is zero "
-                "in the data (the motion does not move its torque), so the data say nothing "
-                "about it; its identified value is the projection's alone.",
-            ]
-        if n_flagged:
-            lines += [
-                "",
-                f"undetermined ({n_flagged} entries): a value or spread beyond any physical "
-                f"scale, more than {UNDETERMINED_FACTOR:.0e} times the largest |value| of that "
-                "kind in the description (at least 1 kg, kg m, kg m^2, N m s/rad or N m), or "
-                "not finite: the data do not determine this parameter, only combinations of it "
-                "with others. Read no physical meaning into the value; the held-out errors above "
-                "say how well the model predicts torques.",
-            ]
-        if images:
-            lines += ["", "## Figures", ""]
-            for caption, rel in images.items():
-                lines += [f"![{caption}]({rel})", ""]
-        if self.settings.get("command"):
-            lines += ["", "## Reproduce", "", "```", str(self.settings["command"]), "```"]
-        return "\n".join(lines) + "\n"
+        """The report as Markdown (``images``: caption -> relative PNG path), one section after
+        the other (`torchjfa._report_markdown.report_markdown`)."""
+        return report_markdown(self, images)
 
     def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
         """Write the model, data, tables, figures and Markdown report into ``out_dir``.

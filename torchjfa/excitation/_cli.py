@@ -136,7 +136,6 @@ def run(args, model) -> int:
         ValueError: on bad options or limits that cannot be met.
     """
     from ..sim import DEFAULT_RATES
-    from ._design import optimize_excitation, random_excitation, trajectory_information
     from ._limits import limits_from_model
 
     n = model.n_dof
@@ -156,6 +155,33 @@ def run(args, model) -> int:
         torque=_limit_arg(args.torque_limit, n, "torque-limit"),
         workspace=args.workspace or (),
     )
+    res, rnd, rnd_margins, info = _design(args, model, limits, rate, posture)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_trajectory(out, model, res.trajectory, rate, args.duration)
+    summary = _summary(args, model, res, rnd_margins, info, rate)
+    (out / "report.json").write_text(json.dumps(summary, indent=1))
+    (out / "report.md").write_text(_markdown(summary, limits))
+    if not args.no_plots:
+        _plots(out, model, limits, res.trajectory, rnd, info, rate, args.duration)
+    o, r = info["optimised"], info["random"]
+    print(
+        f"optimised a {args.duration:g} s excitation of {model.n_dof} joints in "
+        f"{res.seconds:.1f} s: criterion {res.criterion} {o[res.criterion]:.4g} (random "
+        f"{r[res.criterion]:.4g}), condition number {o['condition_number']:.4g} (random "
+        f"{r['condition_number']:.4g}, {r['condition_number'] / o['condition_number']:.2f}x)"
+    )
+    print(f"wrote {out}/trajectory.npz, trajectory.csv, coefficients.json, report.md")
+    return 0
+
+
+def _design(args, model, limits, rate: float, posture):
+    """``(res, rnd, rnd_margins, info)``: the optimised excitation (`optimize_excitation`'s
+    result), a random one of the same band for comparison, the random one's margins to the
+    limits, and both trajectories' information (`trajectory_information`, name -> dict)."""
+    from ._design import optimize_excitation, random_excitation, trajectory_information
+    from ._limits import check_limits
+
     res = optimize_excitation(
         model,
         limits,
@@ -176,20 +202,21 @@ def run(args, model) -> int:
         model, limits, base_frequency=args.base_freq, harmonics=args.harmonics, rate=rate,
         seed=args.seed,
     )  # fmt: skip
-    from ._limits import check_limits
-
     rnd_margins = check_limits(model, rnd, limits, rate=rate, raise_error=False)
     n_info = max(args.grid, 1000)
     info = {
         "optimised": trajectory_information(model, res.trajectory, res.basis, n_grid=n_info),
         "random": trajectory_information(model, rnd, res.basis, n_grid=n_info),
     }
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    traj = res.trajectory
-    t, sig = _table(model, traj, rate, args.duration)
+    return res, rnd, rnd_margins, info
+
+
+def _write_trajectory(out: Path, model, traj, rate: float, duration: float) -> None:
+    """``trajectory.npz`` (the `FourierTrajectory` and its samples), ``trajectory.csv`` (t, q,
+    qd, qdd at ``rate`` Hz over ``duration`` s) and ``coefficients.json`` into ``out``."""
+    t, sig = _table(model, traj, rate, duration)
     names = model.joint_names
-    res.trajectory.save(out / "trajectory.npz", t=t, joint_names=np.array(names), rate=rate, **sig)
+    traj.save(out / "trajectory.npz", t=t, joint_names=np.array(names), rate=rate, **sig)
     header = ["t"] + [f"{k}_{j}" for k in ("q", "qd", "qdd") for j in names]
     cols = np.column_stack([t] + [sig[k] for k in ("q", "qd", "qdd")])
     np.savetxt(out / "trajectory.csv", cols, delimiter=",", header=",".join(header), comments="")
@@ -203,7 +230,12 @@ def run(args, model) -> int:
         "b": traj.b.tolist(),
     }
     (out / "coefficients.json").write_text(json.dumps(coef, indent=1))
-    summary = {
+
+
+def _summary(args, model, res, rnd_margins, info, rate: float) -> dict:
+    """``report.json``'s content: the command, the design's settings and both trajectories'
+    numbers (their singular values left out)."""
+    return {
         "robot": args.robot,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in getattr(args, "argv", [])),
         "criterion": res.criterion,
@@ -220,19 +252,6 @@ def run(args, model) -> int:
         "optimised": {k: v for k, v in info["optimised"].items() if k != "singular_values"},
         "random": {k: v for k, v in info["random"].items() if k != "singular_values"},
     }
-    (out / "report.json").write_text(json.dumps(summary, indent=1))
-    (out / "report.md").write_text(_markdown(summary, limits))
-    if not args.no_plots:
-        _plots(out, model, limits, traj, rnd, info, rate, args.duration)
-    o, r = info["optimised"], info["random"]
-    print(
-        f"optimised a {args.duration:g} s excitation of {model.n_dof} joints in "
-        f"{res.seconds:.1f} s: criterion {res.criterion} {o[res.criterion]:.4g} (random "
-        f"{r[res.criterion]:.4g}), condition number {o['condition_number']:.4g} (random "
-        f"{r['condition_number']:.4g}, {r['condition_number'] / o['condition_number']:.2f}x)"
-    )
-    print(f"wrote {out}/trajectory.npz, trajectory.csv, coefficients.json, report.md")
-    return 0
 
 
 def _markdown(s: dict, limits) -> str:
