@@ -443,11 +443,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--validation-log", default=None, help="hold out this log instead")
     p.add_argument(
         "--input-noise",
-        choices=("auto", "learn", "periods"),
+        choices=("auto", "learn", "periods", "propagated"),
         default="auto",
-        help="Bayesian JFA's input noise: fixed to the spread between excitation periods "
-        "('periods'), learned ('learn': the seed's estimator, whose eq. 4 the data do not "
-        "identify), or 'auto': periods when the training data hold two or more",
+        help="the regressor's input noise (Bayesian JFA's, and the projection's metric): the "
+        "spread between excitation periods ('periods'), the log's sensor noise from its "
+        "spectrum propagated through the preparation ('propagated'), learned ('learn': the "
+        "seed's estimator, whose eq. 4 the data do not identify), or 'auto': periods when "
+        "the training data hold two or more, else propagated",
     )
     p.add_argument(
         "--jackknife",
