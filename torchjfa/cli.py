@@ -449,7 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
         "spread between excitation periods ('periods'), the log's sensor noise from its "
         "spectrum propagated through the preparation ('propagated'), learned ('learn': the "
         "seed's estimator, whose eq. 4 the data do not identify), or 'auto': periods when "
-        "the training data hold two or more, else propagated",
+        "the training data hold two or more, else propagated for an estimator that takes "
+        "an input noise (Bayesian JFA, JFA)",
     )
     p.add_argument(
         "--jackknife",

@@ -28,7 +28,6 @@ from scipy import signal as _signal
 from scipy import stats
 
 from ._log import JointLog
-from ._prepare import is_uniform, resample
 from ._schema import LogError
 
 __all__ = ["SignalNoise", "signal_noise", "NOISE_SIGNALS"]
@@ -46,7 +45,7 @@ class SignalNoise:
             variances of the additive white noise, rad^2, (rad/s)^2, (N m)^2.
         band_hz: the same keys -> ``(n_dof,)`` the lower edge of the band the floor was read
             from, Hz (it runs to the Nyquist frequency).
-        rate_hz: the log's (uniform, or resampled) rate, Hz.
+        rate_hz: the log's (median) rate, Hz.
         segment: samples per Welch segment (the frequency resolution is ``rate_hz / segment``).
         detected: whether the band's edge was detected (else given).
     """
@@ -93,7 +92,8 @@ def signal_noise(
 
     Args:
         log: a raw `JointLog` (as recorded: before `torchjfa.data.prepare` filters it). An
-            uneven log is resampled at its median rate first (`torchjfa.data.resample`).
+            uneven log's samples are taken as uniform at its median rate (the noise is per
+            sample; the jitter moves the low-band signal, not the floor).
         band_hz: the lower edge of the noise band, Hz (above the excitation's bandwidth), or
             None to detect it per signal and joint.
         segment: samples per Welch segment (default the largest power of two up to 256 that
@@ -106,8 +106,8 @@ def signal_noise(
     Raises:
         LogError: on a log too short for a spectrum, or a band with fewer than 4 bins.
     """
-    if not is_uniform(log.t):
-        log = resample(log)
+    # an uneven log's samples are read as if uniform at its median rate: white noise is per
+    # sample, and interpolating onto a grid (`resample`) would smooth it away in part
     n, fs = log.n_samples, log.rate_hz
     if segment is None:
         if n < 64:

@@ -91,7 +91,8 @@ class Options:
         weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
             variance, `torchjfa.pipeline.residual_joint_weights`) or ``"none"``.
         input_noise: the regressor's input noise: ``"auto"`` (from the repeated excitation
-            periods where the training data hold two or more, else ``"propagated"``),
+            periods where the training data hold two or more, else ``"propagated"`` for an
+            estimator that takes an input noise and none for the others),
             ``"periods"`` (insist on it), ``"propagated"`` (the raw log's sensor noise, from
             its spectrum, pushed through the preparation and the regressor:
             `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
