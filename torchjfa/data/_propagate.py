@@ -152,12 +152,13 @@ def propagated_noise(
         Y0 = model.regressor(q0[c], qd0[c], qdd0[c], compiled=compiled)  # (b, n_dof, n_params)
         if scale is not None:
             Y0 = Y0 * scale
-        power += Y0.pow(2).sum(dim=(0, 1))
+        power += torch.einsum("bjp,bjp->p", Y0, Y0)
         for d, (q, qd, qdd, _) in enumerate(noisy):
             dY = model.regressor(q[c], qd[c], qdd[c], compiled=compiled)
             if scale is not None:
-                dY = dY * scale
-            draws[d] += (dY - Y0).pow(2).sum(dim=(0, 1))
+                dY.mul_(scale)
+            dY.sub_(Y0)
+            draws[d] += torch.einsum("bjp,bjp->p", dY, dY)
     n_rows = rows * n_dof
     draws /= n_rows
     return PropagatedNoise(
