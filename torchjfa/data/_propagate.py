@@ -39,9 +39,9 @@ __all__ = ["PropagatedNoise", "propagated_noise"]
 class PropagatedNoise:
     """Noise variances of the prepared regression, by Monte Carlo (float64, the model's order).
 
-    The fields `torchjfa.data.PeriodNoise` has mean the same here (``input_noise``,
-    ``output_noise``, ``output_noise_per_joint``, ``column_power``), so either can be given to
-    the estimators and the projection.
+    The fields it shares with `torchjfa.data.PeriodNoise` (``input_noise``, ``output_noise``,
+    ``output_noise_per_joint``, ``column_power``) mean the same, so either can be given to the
+    estimators and the projection.
 
     Attributes:
         input_noise: ``(n_params,)`` per-column variance of the (weighted) regressor rows,
@@ -100,12 +100,14 @@ def propagated_noise(
             defaults; `torchjfa.identification.PreparedData.preparation`).
         joint_weights: ``(n_dof,)`` weights of each joint's equations (model order) when the
             regression is weighted: the noise is then that of the weighted rows.
-        noise: the raw signals' white noise (default `signal_noise` of ``raw_log``).
+        noise: the raw signals' white noise, in ``raw_log``'s joint order (default
+            `signal_noise` of ``raw_log``).
         samples: use the first this many prepared samples (the training part of a log whose
             tail is held out), default all.
         n_draws: Monte Carlo draws (at least 2, for the error).
         seed: seeds the draws (a `torch.Generator`).
-        chunk_size: samples per regressor chunk; memory ``O(chunk_size * n_dof * n_params)``.
+        chunk_size: samples per regressor chunk: memory ``O(chunk_size * n_dof * n_params)``
+            for the regressors, besides the ``n_draws`` prepared copies of the log's signals.
         compiled: the regressor's path (`RigidBodyModel.regressor`).
 
     Returns:
