@@ -176,3 +176,49 @@ def test_a_validation_log_is_held_out_instead_of_the_end(head_csv, tmp_path):
         out = torchjfa.identify("head", train, torchjfa.Options(**FAST), validation_log=valid)
     assert out.report.settings["validation"] == f"separate log {valid}"
     assert out.data.validation.t[0] >= log.t[half] - 1e-12
+
+
+def test_auto_input_noise_without_periods_is_propagated_where_the_estimator_takes_it(head_csv):
+    """No periods: Bayesian JFA gets the sensor noise propagated through the flow (the same
+    numbers as `propagated_noise` called on the stages' data), OLS none (as before), and
+    ``"propagated"`` insists on it for any estimator; with periods, ``"auto"`` is periods."""
+    from torchjfa.data import propagated_noise
+
+    model = ident.load_model("head")
+    options = torchjfa.Options(estimator="bayes-jfa", period=None, cutoff=20.0)
+    data = ident.prepare_data(model, ident.read(head_csv, model, options), options)
+    assert data.train.period_samples is None and data.raw.n_samples == read_log(head_csv).n_samples
+    noise = ident.choose_noise(model, data, options)
+    assert noise.mode == "propagated" and noise.period_noise is None and not noise.warnings
+    direct = propagated_noise(
+        model,
+        data.raw,
+        data.preparation,
+        joint_weights=noise.joint_weights,
+        samples=data.train.n_samples,
+    )
+    assert torch.equal(noise.input_noise, direct.input_noise)
+    assert noise.propagated.n_rows == data.train.n_samples * model.n_dof
+    assert noise.how == direct.describe() and noise.how.startswith("propagated by Monte Carlo")
+    ols = ident.choose_noise(model, data, options.replace(estimator="ols"))
+    assert ols.mode == "learn" and ols.input_noise is None  # the default run is unchanged
+    insisted = ident.choose_noise(
+        model, data, options.replace(estimator="ols", input_noise="propagated")
+    )
+    assert insisted.mode == "propagated" and torch.equal(insisted.input_noise, direct.input_noise)
+    periodic = options.replace(period="auto")
+    data = ident.prepare_data(model, ident.read(head_csv, model, periodic), periodic)
+    assert ident.choose_noise(model, data, periodic).mode == "periods"
+
+
+def test_the_command_takes_input_noise_propagated_and_reports_how(head_csv, tmp_path, capsys):
+    args = ["identify", "head", str(head_csv), "--out", str(tmp_path), "--quiet", "--no-plots"]
+    args += ["--jackknife", "0", "--cutoff", "20", "--input-noise", "propagated"]
+    assert main(args) == 0
+    capsys.readouterr()
+    settings = _report(tmp_path)["settings"]
+    assert settings["input_noise"] == "propagated"
+    assert settings["input_noise_how"].startswith("propagated by Monte Carlo (8 draws")
+    assert "white sensor noise from the spectrum's floor" in settings["input_noise_how"]
+    text = (tmp_path / "report.md").read_text()
+    assert "input noise (the log's sensor noise (from its spectrum) propagated" in text

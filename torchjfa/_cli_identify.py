@@ -286,11 +286,14 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
     """How the parameters are estimated and projected (`torchjfa.identification.Options`)."""
     p.add_argument(
         "--input-noise",
-        choices=("auto", "learn", "periods"),
+        choices=("auto", "learn", "periods", "propagated"),
         default="auto",
-        help="Bayesian JFA's input noise: fixed to the spread between excitation periods "
-        "('periods'), learned ('learn': the seed's estimator, whose eq. 4 the data do not "
-        "identify), or 'auto': periods when the training data hold two or more",
+        help="the regressor's input noise (Bayesian JFA's, and the projection's metric): the "
+        "spread between excitation periods ('periods'), the log's sensor noise from its "
+        "spectrum propagated through the preparation ('propagated'), learned ('learn': the "
+        "seed's estimator, whose eq. 4 the data do not identify), or 'auto': periods when "
+        "the training data hold two or more, else propagated for an estimator that takes "
+        "an input noise (Bayesian JFA, JFA)",
     )
     p.add_argument(
         "--jackknife",

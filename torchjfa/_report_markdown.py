@@ -51,6 +51,7 @@ def estimator_text(est) -> str:
 _NOISE_MODES = {
     "periods": "fixed to the spread between excitation periods",
     "learn": "learned by the estimator",
+    "propagated": "the log's sensor noise (from its spectrum) propagated to the regressor",
 }
 
 

@@ -7,7 +7,9 @@ data; `differentiate` is the filter and derivatives alone;
 `check_log` finds logs that cannot identify anything (gaps, no motion, degrees, scrambled
 columns); `coverage` says where another log's motion goes beyond the identification log's;
 `regressor_noise` estimates the regression's input and output noise from repeated excitation
-periods. `NpzArchive` and `NpzLog` are the one ``.npz`` reader (member by member, row range by
+periods; `signal_noise` estimates the sensors' noise from a raw log's spectrum and
+`propagated_noise` pushes it through the preparation and the regressor to the same noise for
+any log. `NpzArchive` and `NpzLog` are the one ``.npz`` reader (member by member, row range by
 row range); `log_sources` streams logs to `torchjfa.pipeline.stream_moments` through it.
 """
 
@@ -35,8 +37,12 @@ from ._prepare import is_uniform as is_uniform
 from ._prepare import prepare as prepare
 from ._prepare import resample as resample
 from ._prepare import transient_periods as transient_periods
+from ._propagate import PropagatedNoise as PropagatedNoise
+from ._propagate import propagated_noise as propagated_noise
 from ._schema import KINDS as KINDS
 from ._schema import TIME_COLUMN as TIME_COLUMN
 from ._schema import LogError as LogError
 from ._sources import log_length as log_length
 from ._sources import log_sources as log_sources
+from ._spectrum import SignalNoise as SignalNoise
+from ._spectrum import signal_noise as signal_noise

@@ -162,6 +162,7 @@ def identify(
         "data": dict(data.info),
         "identify_seconds": seconds,
         "input_noise": noise.mode,
+        "input_noise_how": noise.how,
         "estimator": estimator_text(result.estimator),
         "weighting": options.weighting,
         **dict(settings or {}),

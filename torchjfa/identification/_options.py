@@ -91,9 +91,12 @@ class Options:
         weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
             variance, `torchjfa.pipeline.residual_joint_weights`) or ``"none"``.
         input_noise: the regressor's input noise: ``"auto"`` (from the repeated excitation
-            periods where the training data hold two or more, else none given), ``"periods"``
-            (insist on it), ``"learn"`` (none given: Bayesian JFA learns it), or ``(n_params,)``
-            variances of the (weighted) regressor columns.
+            periods where the training data hold two or more, else ``"propagated"`` for an
+            estimator that takes an input noise and none for the others),
+            ``"periods"`` (insist on it), ``"propagated"`` (the raw log's sensor noise, from
+            its spectrum, pushed through the preparation and the regressor:
+            `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
+            it), or ``(n_params,)`` variances of the (weighted) regressor columns.
         jackknife: blocks of the delete-one-block jackknife spread (0: none).
 
     Projection (`torchjfa.physical.project`):
@@ -142,7 +145,7 @@ class Options:
 
             _choice("estimator", self.estimator, available())
         if isinstance(self.input_noise, str):
-            _choice("input_noise", self.input_noise, ("auto", "learn", "periods"))
+            _choice("input_noise", self.input_noise, ("auto", "learn", "periods", "propagated"))
         if self.cutoff != "auto" and not 0 < float(self.cutoff) < float("inf"):
             raise IdentificationError(f"cutoff must be 'auto' or a positive Hz, got {self.cutoff}")
         if not 0.0 < float(self.validation) < 1.0:

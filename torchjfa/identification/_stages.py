@@ -24,6 +24,7 @@ from ..data import (
     coverage,
     cutoff_grid,
     prepare,
+    propagated_noise,
     read_log,
     regressor_noise,
 )
@@ -168,6 +169,9 @@ class PreparedData:
         preparation: the keywords of `torchjfa.data.prepare` used.
         info: what `prepare` did to the identification log (rates, period, samples dropped).
         warnings: the stages' warnings so far (the logs' checks, the cut-off's choice).
+        raw: the raw identification log ``train`` was prepared from (its first
+            ``train.n_samples`` prepared samples are ``train``), or None; `choose_noise`
+            propagates its sensor noise (`torchjfa.data.propagated_noise`).
     """
 
     train: JointLog
@@ -178,6 +182,7 @@ class PreparedData:
     preparation: dict
     info: dict
     warnings: list[str] = field(default_factory=list)
+    raw: JointLog | None = None
 
     def describe(self) -> str:
         """One line on what the preparation did."""
@@ -228,7 +233,9 @@ def prepare_data(
         train, valid = data.split(options.validation, gap=gap)
         split = f"last {options.validation:.0%} of the log, {gap} samples apart"
     enough(train.n_samples, model, "after filtering and the validation split, training has")
-    return PreparedData(train, valid, split, cutoff, how, prep, dict(data.info), warnings)
+    return PreparedData(
+        train, valid, split, cutoff, how, prep, dict(data.info), warnings, raw=raw.log
+    )
 
 
 def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings: list):
@@ -260,6 +267,15 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
 
 
 # ------------------------------------------------------------------------------ noise
+#: how each `NoiseChoice.mode` sets the input noise, for the report
+NOISE_HOW = {
+    "periods": "the spread between the training data's excitation periods "
+    "(torchjfa.data.regressor_noise)",
+    "learn": "none given: the estimator learns it",
+    "given": "given by the user",
+}
+
+
 @dataclass
 class NoiseChoice:
     """What `choose_noise` returns: the weights of the joints' equations and the input noise.
@@ -270,8 +286,10 @@ class NoiseChoice:
             excitation periods, capped where it swamps a column), or None without two periods.
         input_noise: ``(n_params,)`` the regressor's input-noise variances given to the
             estimator and the projection, or None (the estimator's own, or none).
-        mode: ``"periods"``, ``"learn"`` or ``"given"``.
+        mode: ``"periods"``, ``"propagated"``, ``"learn"`` or ``"given"``.
         warnings: what the user should know about these choices.
+        how: one line on how the input noise was set (for the report's settings).
+        propagated: the `torchjfa.data.PropagatedNoise` in ``"propagated"`` mode, else None.
     """
 
     joint_weights: torch.Tensor | None
@@ -279,14 +297,25 @@ class NoiseChoice:
     input_noise: torch.Tensor | None
     mode: str
     warnings: list[str] = field(default_factory=list)
+    how: str = ""
+    propagated: object = None
 
 
 def choose_noise(model: RigidBodyModel, data: PreparedData, options: Options | None = None):
     """The joint weights (``options.weighting``) and the input noise (``options.input_noise``)
     of the training data: a `NoiseChoice`.
 
+    ``"auto"`` takes the spread between excitation periods where the training data hold two
+    or more (``"periods"``), else, for an estimator that takes an input noise (Bayesian JFA,
+    JFA), the sensor noise of the raw log propagated through the preparation, the regressor and
+    the joint weights (``"propagated"``, `torchjfa.data.propagated_noise`), and none for the
+    others (``"learn"``: OLS's projection keeps its plain metric). ``"learn"`` gives none
+    (Bayesian JFA learns it); ``"propagated"`` insists on the propagated noise, for any
+    estimator (and the projection's metric).
+
     Raises:
-        IdentificationError: ``input_noise="periods"`` without two excitation periods.
+        IdentificationError: ``input_noise="periods"`` without two excitation periods, or
+            ``"propagated"`` without the raw log (``data.raw``).
     """
     options = Options() if options is None else options
     train, warnings = data.train, []
@@ -301,29 +330,71 @@ def choose_noise(model: RigidBodyModel, data: PreparedData, options: Options | N
         warnings += capped
     mode = options.input_noise
     if not isinstance(mode, str):
-        return NoiseChoice(weights, pnoise, noise_vector(mode, model.n_params), "given", warnings)
-    if mode == "auto":
+        noise = noise_vector(mode, model.n_params)
+        return NoiseChoice(weights, pnoise, noise, "given", warnings, NOISE_HOW["given"])
+    auto = mode == "auto"
+    if auto:
+        # the propagated noise only where the estimator takes it: given to the projection's
+        # metric alone (OLS and the like) it made the real Panda log's default run worse
+        # (docs/report.md), so that stays as it was
         mode = "periods" if pnoise is not None else "learn"
-        if mode == "learn" and options.estimator == "bayes-jfa":
-            warnings.append(
-                "no periodic excitation found, so Bayesian JFA learns the input noise; its "
-                "noiseless-input estimate (eq. 4) is then not identified by the data (see "
-                "docs/report.md): compare with --estimator ols"
-            )
+        if mode == "learn" and _takes_input_noise(options.estimator):
+            mode = "propagated"
     if mode == "periods" and pnoise is None:
         raise IdentificationError(
             "--input-noise periods needs a periodic excitation with at least two periods in "
-            "the training data; none was found (use --period SECONDS or --input-noise learn)"
+            "the training data; none was found (use --period SECONDS, --input-noise "
+            "propagated or --input-noise learn)"
         )
+    if mode == "propagated":
+        try:
+            prop = _propagated(model, data, weights, options)
+        except (LogError, IdentificationError) as exc:
+            if not auto:
+                raise IdentificationError(f"--input-noise propagated: {exc}") from None
+            warnings.append(f"--input-noise auto: {exc}; no input noise is given")
+            return NoiseChoice(weights, pnoise, None, "learn", warnings, NOISE_HOW["learn"])
+        prop, capped = cap_period_noise(model, prop, "the propagated sensor noise")
+        warnings += capped
+        return NoiseChoice(weights, pnoise, prop.input_noise, mode, warnings, prop.describe(), prop)
     noise = pnoise.input_noise if mode == "periods" else None
-    return NoiseChoice(weights, pnoise, noise, mode, warnings)
+    return NoiseChoice(weights, pnoise, noise, mode, warnings, NOISE_HOW[mode])
 
 
-def cap_period_noise(model: RigidBodyModel, pnoise) -> tuple[object, list[str]]:
-    """Period noise of at least half a column's mean square (a column whose signal the spread
-    between periods swamps) capped at half of it, with a warning: the estimators refuse noise
-    at or above a column's variance, and de-attenuating such a column more than 2x amplifies
-    its noise."""
+def _takes_input_noise(estimator) -> bool:
+    """Whether the estimator (a name, or an estimator given as it is) takes ``input_noise``."""
+    from .. import estimators
+
+    if isinstance(estimator, str):
+        return estimators.takes(estimator, "input_noise")
+    return hasattr(estimator, "input_noise")
+
+
+def _propagated(model: RigidBodyModel, data: PreparedData, weights, options: Options):
+    """`torchjfa.data.propagated_noise` of the training part of ``data``."""
+    if data.raw is None:
+        raise IdentificationError(
+            "the propagated noise needs the raw log the training data were prepared from "
+            "(PreparedData.raw, set by prepare_data)"
+        )
+    return propagated_noise(
+        model,
+        data.raw,
+        data.preparation,
+        joint_weights=weights,
+        samples=data.train.n_samples,
+        compiled=options.compute.compiled,
+    )
+
+
+def cap_period_noise(
+    model: RigidBodyModel, pnoise, what: str = "the spread between periods"
+) -> tuple[object, list[str]]:
+    """Period noise (or any noise estimate with ``input_noise`` and ``column_power``, named
+    ``what`` in the warning) of at least half a column's mean square (a column whose signal
+    the noise swamps) capped at half of it, with a warning: the estimators refuse noise at or
+    above a column's variance, and de-attenuating such a column more than 2x amplifies its
+    noise."""
     power = pnoise.column_power
     noise = pnoise.input_noise
     bad = (noise >= 0.5 * power) & (power > 1e-20 * power.max())  # not round-off columns
@@ -333,7 +404,7 @@ def cap_period_noise(model: RigidBodyModel, pnoise) -> tuple[object, list[str]]:
     shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
     capped = replace(pnoise, input_noise=torch.where(bad, 0.5 * power, noise))
     return capped, [
-        f"the spread between periods is at least half the signal of {len(names)} regressor "
+        f"{what} is at least half the signal of {len(names)} regressor "
         f"column(s) ({shown}): their input noise is capped at half their mean square; the "
         "parameters they carry are barely determined by this log"
     ]
