@@ -7,16 +7,19 @@ The log is `../shared/data/panda_gaz2019` (its README: a real Panda excitation, 
 measured q, qd and link-side torques; not shipped with the package). Without it the script says
 so and stops (exit 0).
 
-The last 20 % of the log (by time) is held out. Every row is identified by the `torchjfa
-identify` command on the first 80 % alone (``--validation-log`` names the held-out part, so the
-command fits on the whole 80 % and nothing it chooses sees the held-out part), and every row is
+The last 20 % of the log (by time) is held out. Every row is identified by `torchjfa.identify`
+with its `torchjfa.Options` (what the `torchjfa identify` command runs; each row prints the
+options it changes) on the first 80 % alone (the held-out part is given as the
+validation log, so the fit uses the whole 80 % and nothing it chooses sees the held-out part),
+and every row is
 judged by ONE evaluation pipeline: the whole log prepared at one cut-off (``EVAL_CUTOFF_HZ``, the
 same for all rows, so that a row's own smoother target cannot win), the held-out samples from
 ``2 / EVAL_CUTOFF_HZ`` s after the split on (so that the filtered target holds under 0.5 % of
 training torques), the per-joint RMS of the predicted minus the filtered measured torque;
 the same against the unfiltered torque is printed beside it. Rows:
 
-* defaults: ``torchjfa identify panda_arm train.csv`` and nothing else;
+* defaults: ``torchjfa.Options()``, i.e. ``torchjfa identify panda_arm train.csv`` and nothing
+  else;
 * Bayesian JFA: the best of a few configurations (judged on the held-out part: an advantage
   the defaults do not get);
 * OLS, viscous + Coulomb + offset friction, at the best of a few hand-picked cut-offs (judged
@@ -30,20 +33,19 @@ Then the identified link masses of the defaults against the description's, with 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
-import json
+import dataclasses
 import math
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import torch
 
-from torchjfa.cli import load_model, main
+import torchjfa
 from torchjfa.data import JointLog, prepare, write_log
-from torchjfa.io import read_identified
+from torchjfa.identification import IdentificationWarning, load_model
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "panda_gaz2019"
 ROBOT = "panda_arm"
@@ -53,9 +55,9 @@ EVAL_CUTOFF_HZ = 10.0  # fixed before any row was run; none of the rows' choices
 FRICTION = "viscous,coulomb,offset"
 HAND_CUTOFFS = (5.0, 8.0, 12.0, 20.0)
 JFA_CONFIGS = (
-    ("bayes-jfa", ()),
-    ("bayes-jfa", ("--ard", "output")),
-    ("bayes-jfa", ("--weighting", "none")),
+    {"estimator": "bayes-jfa"},
+    {"estimator": "bayes-jfa", "estimator_options": {"ard": "output"}},
+    {"estimator": "bayes-jfa", "weighting": "none"},
 )
 MASS_BAND = (0.3, 3.0)
 SMOKE_SECONDS = 10.0
@@ -82,19 +84,24 @@ def load_panda(folder: str | Path = DATA) -> JointLog:
     )
 
 
-def _identify(train_csv: Path, valid_csv: Path, out: Path, options) -> tuple[Path, float]:
-    argv = ["identify", ROBOT, str(train_csv), "--validation-log", str(valid_csv)]
-    argv += ["--out", str(out), "--quiet", "--no-plots", *options]
-    text = io.StringIO()
+def _identify(train_csv: Path, valid_csv: Path, options: torchjfa.Options):
+    """`torchjfa.identify` of one row; ``(Identification, seconds)``."""
     started = time.perf_counter()
-    with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
-        status = main(argv)
-    seconds = time.perf_counter() - started
-    if status != 0:
-        raise RuntimeError(
-            f"torchjfa {' '.join(argv)} ended with status {status}:\n{text.getvalue()}"
-        )
-    return out / "model.npz", seconds
+    with warnings.catch_warnings():  # the rows' warnings are in their reports
+        warnings.simplefilter("ignore", IdentificationWarning)
+        ident = torchjfa.identify(ROBOT, train_csv, options, validation_log=valid_csv)
+    return ident, time.perf_counter() - started
+
+
+def _changes(options: torchjfa.Options) -> str:
+    """The options a row changes from the defaults, e.g. ``estimator='ols', cutoff=8.0``."""
+    default = torchjfa.Options()
+    changed = [
+        f"{f.name}={getattr(options, f.name)!r}"
+        for f in dataclasses.fields(options)
+        if getattr(options, f.name) != getattr(default, f.name)
+    ]
+    return ", ".join(changed) or "(the defaults)"
 
 
 def _evaluation(log: JointLog, t_split: float) -> dict[str, torch.Tensor]:
@@ -151,33 +158,32 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
         write_log(log.select(slice(n_train, log.n_samples)), valid_csv)
 
         def row(label, options):
-            path, seconds = _identify(train_csv, valid_csv, tmp / f"r{len(rows)}", options)
-            ident = read_identified(path)
+            ident, seconds = _identify(train_csv, valid_csv, options)
             filt, raw = _rms(ident.model, ident.theta, ev)
-            settings = json.loads((path.parent / "report.json").read_text())["settings"]
             return {
                 "label": label,
-                "cutoff_hz": settings["prepare"]["cutoff_hz"],
+                "cutoff_hz": ident.data.cutoff_hz,
                 "seconds": seconds,
-                "options": " ".join(options) or "(the defaults)",
+                "options": _changes(options),
                 "rms": filt,
                 "rms_raw": raw,
                 "model": ident.model,
                 "theta": ident.theta,
-                "warnings": settings.get("warnings", []),
+                "warnings": ident.warnings,
             }
 
-        smoke_opts = ("--jackknife", "0") if smoke else ()
-        rows["defaults"] = row("defaults", smoke_opts)
+        base = torchjfa.Options(jackknife=0) if smoke else torchjfa.Options()
+        rows["defaults"] = row("defaults", base)
         if not smoke:
-            jfa = [row("Bayesian JFA", ("--estimator", e, *o)) for e, o in JFA_CONFIGS]
+            jfa = [row("Bayesian JFA", base.replace(**c)) for c in JFA_CONFIGS]
             rows["bayes-jfa"] = min(jfa, key=lambda r: float(r["rms"].mean()))
             tried = ", ".join(f"{r['options']} {float(r['rms'].mean()):.4f}" for r in jfa)
         cutoffs = HAND_CUTOFFS[1:2] if smoke else HAND_CUTOFFS
+        friction = tuple(FRICTION.split(","))
         ols = [
             row(
                 f"OLS {FRICTION}, {c:g} Hz",
-                ("--estimator", "ols", "--friction", FRICTION, "--cutoff", f"{c:g}", *smoke_opts),
+                base.replace(estimator="ols", friction=friction, cutoff=c),
             )
             for c in cutoffs
         ]
