@@ -124,7 +124,7 @@ def test_a_batch_of_problems_gives_the_single_fits(ard, fixed_x):
     singles = [
         jf.fit(S, None if noise is None else noise[i], hp, **kw) for i, S in enumerate(stats)
     ]
-    batch = jb.Stats(*(torch.stack(t).reshape(2, 2, *t[0].shape) for t in zip(*stats)))
+    batch = jb.Stats(*(torch.stack(t).reshape(2, 2, *t[0].shape) for t in zip(*stats, strict=True)))
     psx = None if noise is None else torch.stack(noise).reshape(2, 2, 5)
     res = jf.fit(batch, psx, hp, **kw)
     assert res.st.shape == (2, 2, 7, 5) and res.n_iter.shape == (2, 2)
