@@ -61,7 +61,8 @@ def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(
     theta = jf._pack(st, psy, hp)
     pc = st[jb.PX][None]
     batch = jb.Stats(*(t[None] for t in S))
-    g, H = jf._derivatives(theta[None], batch, pc, hp)
+    cv = jf._derivatives(theta[None], batch, pc, hp)
+    g, H = cv.g, jf.dense_hessian(cv)
 
     def f(th):
         return jf._theta_bound(th[None], *batch, pc, hp)[0]

@@ -190,91 +190,171 @@ def _theta_bound(theta, xx, xy, yy, n, psx_c, hp: Hyper) -> torch.Tensor:
     return jb.reduced_bound(Stats(xx, xy, yy, n), *_unpack(theta, psx_c, hp), hp)
 
 
-def _per_input(th6: torch.Tensor, psx_c: torch.Tensor, n: torch.Tensor, dg, hp: Hyper):
-    """Each input's own terms of the bound, its predictor ``k`` and its share ``q`` of ``c``,
-    ``(B, d)`` each, from its coordinates ``th6 (B, 5 or 6, d)`` (see `_pack`)."""
-    mz, mx = th6[:, 0], th6[:, 1]
-    vz, vx, psz = torch.exp(th6[:, 2]), torch.exp(th6[:, 3]), torch.exp(th6[:, 4])
-    psx = psx_c if hp.fixed_x else torch.exp(th6[:, 5])
-    tau = 1.0 + vz / psz + vx / psx
-    v = mx * mx / tau + psx
-    k = mz * mx / (tau * v)
-    q = psz + mz * mz * psx / (tau * v)
-    own = -0.5 * n[:, None] * (torch.log(v) + torch.log(tau)) - 0.5 * dg / v
-    return own + jb.kl_terms(mz, mx, vz, vx, hp), k, q
+class Curvature(NamedTuple):
+    """The gradient ``g (B, P)`` of the bound at ``theta (B, P)`` (``P = r d + 1``, see
+    `_pack`) and its Hessian in factored form ``H = blockdiag(hb, hpsy) + J^T G J``: ``hb
+    (B, r, r, d)`` each input's own block, ``hpsy (B,)`` that of ``log psi_y``; ``J`` the
+    Jacobian of ``(k, c)``, whose row ``k_m`` is ``jk (B, r, d)`` on input m's coordinates
+    and whose row ``c`` is ``jq (B, r, d)`` and ``psy (B,)``; ``G`` the Hessian of
+    ``g(k, c) = -N/2 log c - S_ee(k) / (2 c)``: ``-xx / c`` (``xx (B, d, d)``, ``c (B,)``),
+    ``gkc (B, d)``, ``gcc (B,)``."""
+
+    g: torch.Tensor
+    hb: torch.Tensor
+    hpsy: torch.Tensor
+    jk: torch.Tensor
+    jq: torch.Tensor
+    psy: torch.Tensor
+    xx: torch.Tensor
+    c: torch.Tensor
+    gkc: torch.Tensor
+    gcc: torch.Tensor
 
 
-def _derivatives(theta, S: Stats, psx_c, hp: Hyper):
-    """Gradient ``(B, P)`` and Hessian ``(B, P, P)`` of the bound at ``theta (B, P)``.
+def _derivatives(theta, S: Stats, psx_c, hp: Hyper) -> Curvature:
+    """Gradient and factored Hessian (`Curvature`) of the bound at ``theta (B, P)``.
 
-    The bound is ``sum_m f_m(theta_m) + g(k, c)`` with ``g = -N/2 log c - S_ee(k) / (2 c)``,
-    where input m's own terms ``f_m``, predictor ``k_m`` and share ``q_m`` of
-    ``c = psi_y + sum q`` depend on its coordinates ``theta_m`` alone. So the Hessian is
-    block-diagonal (per-input Hessians of ``f_m + g_k k_m + g_c q_m``, by autograd, one
-    backward pass per coordinate kind for all inputs at once) plus ``J^T (d^2 g) J`` with ``J``
-    the Jacobian of ``(k, c)``, written out.
+    The bound is ``sum_m f_m(theta_m) + g(k, c)`` where input m's own terms ``f_m``, predictor
+    ``k_m`` and share ``q_m`` of ``c = psi_y + sum q`` depend on its coordinates ``theta_m``
+    alone. So the Hessian is block-diagonal (each input's Hessian of ``f_m + g_k k_m + g_c
+    q_m``, in second-order forward mode, `_jfa_bound.Jet`) plus ``J^T (d^2 g) J``. Cost: one
+    ``d x d`` mat-vec and ``O(r^2 d)``.
     """
     B, P = theta.shape
     d = S.xy.shape[-1]
     r = (P - 1) // d
-    with torch.enable_grad():
-        th6 = theta[:, : r * d].detach().reshape(B, r, d).requires_grad_(True)
-        own, k, q = _per_input(th6, psx_c, S.n, S.dg, hp)
-        jk = torch.autograd.grad(k.sum(), th6, retain_graph=True)[0]  # (B, r, d)
-        jq = torch.autograd.grad(q.sum(), th6, retain_graph=True)[0]
-        k0, q0 = k.detach(), q.detach()
-        psy = torch.exp(theta[:, -1])
-        c = psy + q0.sum(-1)
-        xk = (S.xx @ k0[..., None])[..., 0]
-        s_xe = S.xy - xk
-        S_ee = S.yy - (k0 * (S.xy + s_xe)).sum(-1)
-        g_k = s_xe / c[:, None]  # (B, d)
-        g_c = -0.5 * S.n / c + 0.5 * S_ee / (c * c)
-        g_kc = -s_xe / (c * c)[:, None]
-        g_cc = 0.5 * S.n / (c * c) - S_ee / (c * c * c)
-        phi = own.sum() + (g_k * k).sum() + (g_c[:, None] * q).sum()
-        grad6 = torch.autograd.grad(phi, th6, create_graph=True)[0]
-        blocks = torch.stack(
-            [torch.autograd.grad(grad6[:, t].sum(), th6, retain_graph=True)[0] for t in range(r)],
-            1,
-        )  # (B, r, r, d): d^2 phi / d theta_t d theta_t' of each input
-    grad6, blocks, jk, jq = grad6.detach(), blocks.detach(), jk.detach(), jq.detach()
-    g = torch.cat([grad6.reshape(B, r * d), (g_c * psy)[:, None]], -1)
-    jc = torch.cat([jq.reshape(B, r * d), psy[:, None]], -1)  # (B, P)
-    H = torch.zeros(B, P, P, dtype=theta.dtype, device=theta.device)
-    # block diagonal: entry ((t, m), (t', m)) = blocks[t, t', m]
-    eye = torch.eye(d, dtype=theta.dtype, device=theta.device)
-    H[:, : r * d, : r * d] = (blocks[:, :, None] * eye[:, None, :]).reshape(B, r * d, r * d)
-    H[:, -1, -1] = g_c * psy
-    # J^T (d^2 g) J: k-k, k-c and c-c terms
-    gkk = -S.xx / c[:, None, None]
-    Hk = jk[:, :, :, None, None] * gkk[:, None, :, None, :] * jk[:, None, None, :, :]
-    H[:, : r * d, : r * d] += Hk.reshape(B, r * d, r * d)
-    kc = (jk * g_kc[:, None, :]).reshape(B, r * d)  # (B, r d): J_k^T g_kc
-    kcf = torch.cat([kc, torch.zeros_like(psy)[:, None]], -1)
-    H += kcf[:, :, None] * jc[:, None, :] + jc[:, :, None] * kcf[:, None, :]
-    H += g_cc[:, None, None] * jc[:, :, None] * jc[:, None, :]
-    return g, H
+    own, k, q = jb.input_jets(theta[:, : r * d].reshape(B, r, d), psx_c, S.n, S.dg, hp)
+    psy = torch.exp(theta[:, -1])
+    c = psy + q.v.sum(-1)
+    s_xe = S.xy - (S.xx @ k.v[..., None])[..., 0]
+    S_ee = S.yy - (k.v * (S.xy + s_xe)).sum(-1)
+    g_k = s_xe / c[:, None]  # (B, d)
+    g_c = -0.5 * S.n / c + 0.5 * S_ee / (c * c)
+    g_cc = 0.5 * S.n / (c * c) - S_ee / (c * c * c)
+    grad = own.g + g_k[:, None] * k.g + g_c[:, None, None] * q.g
+    hb = own.h + g_k[:, None, None] * k.h + g_c[:, None, None, None] * q.h
+    g = torch.cat([grad.expand(B, r, d).reshape(B, r * d), (g_c * psy)[:, None]], -1)
+    return Curvature(
+        g,
+        hb.expand(B, r, r, d),
+        g_c * psy,
+        k.g.expand(B, r, d),
+        q.g.expand(B, r, d),
+        psy,
+        S.xx,
+        c,
+        -s_xe / (c * c)[:, None],
+        g_cc,
+    )
 
 
-def _newton_step(theta, g, H, lam, lb):
+def _jacobian(cv: Curvature) -> torch.Tensor:
+    """``J`` of `Curvature` as a dense ``(B, d + 1, P)`` matrix."""
+    B, r, d = cv.jk.shape
+    Jk = torch.diag_embed(cv.jk).permute(0, 2, 1, 3).reshape(B, d, r * d)  # (m, (t, m))
+    Jc = torch.cat([cv.jq.reshape(B, 1, r * d), cv.psy[:, None, None]], -1)
+    return torch.cat([torch.nn.functional.pad(Jk, (0, 1)), Jc], -2)
+
+
+def _coupling(cv: Curvature) -> torch.Tensor:
+    """``G`` of `Curvature`, ``(B, d + 1, d + 1)``."""
+    top = torch.cat([-cv.xx / cv.c[:, None, None], cv.gkc[..., None]], -1)
+    return torch.cat([top, torch.cat([cv.gkc, cv.gcc[:, None]], -1)[:, None]], -2)
+
+
+def dense_hessian(cv: Curvature) -> torch.Tensor:
+    """The Hessian of `Curvature` as a dense ``(B, P, P)`` matrix (a reference for the tests
+    and for `_newton_step` where the structured solve does not apply)."""
+    B, r, d = cv.jk.shape
+    blk = torch.diag_embed(cv.hb).permute(0, 1, 3, 2, 4).reshape(B, r * d, r * d)
+    H = torch.nn.functional.pad(blk, (0, 1, 0, 1))
+    H[:, -1, -1] = cv.hpsy
+    J = _jacobian(cv)
+    return H + J.mT @ _coupling(cv) @ J
+
+
+def _damping(theta, cv: Curvature, lam, lb):
+    """The free coordinates (``(B, P)`` bool: not at a lower bound with the gradient pointing
+    below it) and Marquardt's damping ``lam diag|H|`` of the free ones, ``(B, P)``."""
+    free = ~((theta <= lb) & (cv.g <= 0))
+    B, r, d = cv.jk.shape
+    wcc = -cv.gcc[:, None, None]
+    dk = -torch.diagonal(cv.hb, dim1=1, dim2=2).mT  # (B, r, d)
+    dk = dk + cv.jk * cv.jk * (cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None])[:, None]
+    dk = dk - 2.0 * cv.gkc[:, None] * cv.jk * cv.jq + wcc * cv.jq * cv.jq
+    diag = torch.cat([dk.reshape(B, r * d), (-cv.hpsy - cv.gcc * cv.psy * cv.psy)[:, None]], -1)
+    diag = diag.abs() * free
+    scale = diag.amax(-1, keepdim=True).clamp_min(1e-300)
+    return free, torch.where(free, diag.clamp_min(1e-12 * scale), 1.0)
+
+
+def _newton_step(theta, cv: Curvature, lam, lb):
     """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted)``.
 
     Coordinates at their lower bound with the gradient pointing below it are held; the others
     solve ``(-H + lam diag|H|) delta = g`` (Marquardt's scaling); ``ok`` is False where that
     matrix is not positive definite; ``gain = g . delta`` (the first-order gain of the step),
     ``predicted`` the gain of the quadratic model.
+
+    The matrix is ``M = A + J^T W J`` (`Curvature`): ``A`` block-diagonal (each input's
+    ``r x r`` block with the diagonal of the ``k``-``k`` coupling, ``(X^T X)_mm / c``
+    ``jk jk^T``, moved into it), ``W`` the rest of ``-G``, ``(d + 1) x (d + 1)``. With ``K =
+    J A^{-1} J^T = L L^T`` (``L`` lower-triangular arrowhead: ``K``'s ``k``-``k`` part is
+    diagonal), ``M^{-1} = A^{-1} - A^{-1} J^T (W - W L C^{-1} L^T W) J A^{-1}`` with ``C = I
+    + L^T W L`` (Woodbury), and where ``A`` is positive definite, ``M`` is iff ``C`` is (the
+    nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
+    Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
+    Problems whose ``A`` is not positive definite take the dense ``P x P`` solve.
     """
-    held = (theta <= lb) & (g <= 0)
-    free = ~held
-    M = -H * (free[..., :, None] & free[..., None, :])
-    diag = torch.diagonal(M, dim1=-2, dim2=-1)
-    scale = diag.abs().amax(-1, keepdim=True).clamp_min(1e-300)
-    damp = torch.where(free, diag.abs().clamp_min(1e-12 * scale), 1.0)
-    M = M + torch.diag_embed(torch.where(free, lam[..., None] * damp, 1.0))
-    chol, info = torch.linalg.cholesky_ex(M)
-    delta = torch.cholesky_solve((g * free)[..., None], chol)[..., 0]
-    ok = (info == 0) & torch.isfinite(delta).all(-1)
+    free, damp = _damping(theta, cv, lam, lb)
+    g = cv.g * free
+    B, r, d = cv.jk.shape
+    fb = free[:, : r * d].reshape(B, r, d)
+    fp = free[:, -1]
+    jk, jq, psy = cv.jk * fb, cv.jq * fb, cv.psy * fp
+    w_kk = cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None]  # (B, d)
+    A = (-cv.hb + w_kk[:, None, None] * jk[:, :, None] * jk[:, None, :]) * (
+        fb[:, :, None] & fb[:, None, :]
+    )
+    lam_d = torch.where(free, lam[:, None] * damp, 1.0)
+    A = A.permute(0, 3, 1, 2) + torch.diag_embed(lam_d[:, : r * d].reshape(B, r, d).mT)
+    a_psy = torch.where(fp, -cv.hpsy, 0.0) + lam_d[:, -1]  # (B,)
+    chol, info = torch.linalg.cholesky_ex(A)  # (B, d, r, r)
+    rhs = torch.stack([g[:, : r * d].reshape(B, r, d), jk, jq], -1).permute(0, 2, 1, 3)
+    z, yk, yq = torch.cholesky_solve(rhs, chol).unbind(-1)  # (B, d, r) each
+    jk_t, jq_t = jk.mT, jq.mT  # (B, d, r)
+    # K = J A^-1 J^T and b = J A^-1 g
+    kkk, kkc = (jk_t * yk).sum(-1), (jk_t * yq).sum(-1)  # (B, d)
+    kcc = (jq_t * yq).sum((-2, -1)) + psy * psy / a_psy
+    b = torch.cat(
+        [(jk_t * z).sum(-1), ((jq_t * z).sum((-2, -1)) + psy * g[:, -1] / a_psy)[:, None]], -1
+    )
+    s = torch.sqrt(kkk.clamp_min(0.0))
+    lc = torch.where(kkk > 0, kkc / torch.where(kkk > 0, s, 1.0), 0.0)
+    lcc = torch.sqrt((kcc - (lc * lc).sum(-1)).clamp_min(0.0))
+    Lm = torch.diag_embed(torch.cat([s, lcc[:, None]], -1))
+    Lm[:, d, :d] = lc
+    W = -_coupling(cv)
+    W.diagonal(dim1=-2, dim2=-1)[:, :d] -= w_kk
+    C = Lm.mT @ W @ Lm
+    C.diagonal(dim1=-2, dim2=-1).add_(1.0)
+    chol_c, info_c = torch.linalg.cholesky_ex(C)
+    Wb = (W @ b[..., None])[..., 0]
+    u = Wb - (W @ (Lm @ torch.cholesky_solve((Lm.mT @ Wb[..., None]), chol_c)))[..., 0]
+    step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
+    delta = torch.cat(
+        [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
+    )
+    a_pd = (info == 0).all(-1) & (a_psy > 0)
+    ok = a_pd & (info_c == 0) & torch.isfinite(delta).all(-1)
+    if not bool(a_pd.all()):  # the dense solve decides where A is not positive definite
+        idx = (~a_pd).nonzero()[:, 0]
+        sub = Curvature(*(t[idx] for t in cv))
+        M = -dense_hessian(sub) * (free[idx, :, None] & free[idx, None, :])
+        M = M + torch.diag_embed(lam_d[idx])
+        chol_m, info_m = torch.linalg.cholesky_ex(M)
+        delta[idx] = torch.cholesky_solve(g[idx, :, None], chol_m)[..., 0]
+        ok[idx] = (info_m == 0) & torch.isfinite(delta[idx]).all(-1)
     delta = torch.where(ok[..., None], delta, 0.0)
     trial = torch.maximum(theta + delta, lb)
     step = trial - theta
@@ -350,8 +430,7 @@ def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=Non
     stops = tol > 0 or coef_tol > 0
     scale = flat.n.clamp_min(1.0)
     L = _theta_bound(theta, *flat, psx_c, hp)
-    g = torch.zeros_like(theta)
-    H = torch.zeros(B, P, P, dtype=theta.dtype, device=theta.device)
+    cv = None
     stale = torch.ones(B, dtype=torch.bool, device=theta.device)
     lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
     live, settled, fixed = torch.ones_like(stale), torch.zeros_like(stale), torch.zeros_like(stale)
@@ -364,7 +443,12 @@ def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=Non
         if bool(need.any()):
             idx = need.nonzero()[:, 0]
             sub = Stats(*(t[idx] for t in flat))
-            g[idx], H[idx] = _derivatives(theta[idx], sub, psx_c[idx], hp)
+            new = _derivatives(theta[idx], sub, psx_c[idx], hp)
+            if cv is None:  # the first iteration differentiates every problem
+                cv = Curvature(*(t.contiguous() for t in new))
+            else:
+                for kept, fresh in zip(cv, new, strict=True):
+                    kept[idx] = fresh
             stale = stale & ~need
             n_estep = n_estep + need.long() * (P + 1)
         thr = tol * torch.maximum(L.abs(), scale)
@@ -372,7 +456,7 @@ def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=Non
         accept = torch.zeros_like(live)
         tiny = torch.zeros_like(live)
         if bool(newton.any()):
-            th_n, ok, gain, pred = _newton_step(theta, g, H, lam, lb)
+            th_n, ok, gain, pred = _newton_step(theta, cv, lam, lb)
             L_n = _theta_bound(th_n, *flat, psx_c, hp)
             tiny = newton & ok & (gain <= 1e-15 * torch.maximum(L.abs(), scale))
             accept = newton & ok & ~tiny & (L_n > L)  # NaN fails
