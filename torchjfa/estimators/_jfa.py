@@ -418,8 +418,10 @@ class BayesianJFA(_JFABase):
             (caller's units, nats) after each iteration; non-decreasing.
         n_iter_: iterations run. converged_: whether a tolerance stopped it. stop_reason_:
             ``"bound"``, ``"coef"`` or ``"max_iter"``.
-        n_accelerated_: kept Newton steps and prunes. n_estep_: E-step equivalents: bound
-            evaluations and E-steps, plus ``P + 1`` per Hessian of the ``P`` free parameters.
+        n_accelerated_: kept Newton steps and prunes. n_estep_: E-step equivalents (the cost
+            in ``d x d`` mat-vecs): one per bound evaluation, E-step, gradient and Hessian,
+            plus each Newton solve's Cholesky flops over a mat-vec's (``(d + 1)^3 / (6 d^2)``
+            structured, ``(6 d + 1)^3 / (6 d^2)`` dense).
         active_: ``(d,)`` bool, the non-constant columns that were modelled.
 
     Example:

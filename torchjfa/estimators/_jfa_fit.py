@@ -25,6 +25,8 @@ the state); `fit` is the entry point. Three methods:
 
 from __future__ import annotations
 
+import contextlib
+import math
 from typing import NamedTuple
 
 import torch
@@ -41,7 +43,9 @@ class Result(NamedTuple):
     """A fit of a batch: ``st (*batch, 7, d)``, ``psy (*batch,)``, ``history (*batch, T)`` the
     bound after each iteration (NaN after a problem stopped), ``n_iter``, ``reason`` (index in
     `REASONS`), ``n_accepted`` (accepted Newton steps and prunes), ``n_estep`` (E-step
-    equivalents: bound evaluations, and one per Hessian column), all ``(*batch,)`` int64."""
+    equivalents, the cost in ``d x d`` mat-vecs: one per bound evaluation and per gradient
+    and Hessian, ``(d + 1)^3 / (6 d^2)`` per structured Newton solve, ``P^3 / (6 d^2)`` per
+    dense one (a Cholesky's flops over a mat-vec's)), all ``(*batch,)`` int64."""
 
     st: torch.Tensor
     psy: torch.Tensor
@@ -289,7 +293,7 @@ def _damping(theta, cv: Curvature, lam, lb):
 
 
 def _newton_step(theta, cv: Curvature, lam, lb):
-    """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted)``.
+    """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted, dense)``.
 
     Coordinates at their lower bound with the gradient pointing below it are held; the others
     solve ``(-H + lam diag|H|) delta = g`` (Marquardt's scaling); ``ok`` is False where that
@@ -304,7 +308,8 @@ def _newton_step(theta, cv: Curvature, lam, lb):
     + L^T W L`` (Woodbury), and where ``A`` is positive definite, ``M`` is iff ``C`` is (the
     nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
     Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
-    Problems whose ``A`` is not positive definite take the dense ``P x P`` solve.
+    Problems whose ``A`` is not positive definite take the dense ``P x P`` solve (``dense``,
+    ``(B,)`` bool, says which).
     """
     free, damp = _damping(theta, cv, lam, lb)
     g = cv.g * free
@@ -360,7 +365,7 @@ def _newton_step(theta, cv: Curvature, lam, lb):
     step = trial - theta
     # the quadratic model's gain g.s - s^T M s / 2, with M s = g - lam D s on the free rows
     pred = 0.5 * ((g * step).sum(-1) + lam * (damp * step * step * free).sum(-1))
-    return trial, ok, (g * step).sum(-1), pred
+    return trial, ok, (g * step).sum(-1), pred, ~a_pd
 
 
 def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
@@ -405,7 +410,30 @@ def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     )
 
 
+@contextlib.contextmanager
+def _one_thread():
+    """Run torch (and its LAPACK) on one thread: the optimiser's kernels are small (``r x r``
+    blocks, ``(d + 1) x (d + 1)`` matrices), and waking threads for each costs more than it
+    gives. On a busy 2-core machine, MKL's two threads took 1.9 s of Cholesky calls in a
+    d = 8 fit that one thread does in 0.01 s."""
+    threads = torch.get_num_threads()
+    if threads == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
+    """`_run_newton` on one thread (`_one_thread`)."""
+    with _one_thread():
+        return _run_newton(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol, bar=bar)
+
+
+def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
     """The monotone Newton optimiser with prune moves (module docstring) from ``(st, psy)``.
 
     An iteration is one damped Newton trial or one prune trial, and the bound after it is
@@ -435,6 +463,7 @@ def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=Non
     lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
     live, settled, fixed = torch.ones_like(stale), torch.zeros_like(stale), torch.zeros_like(stale)
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
+    solve_cost, dense_cost = (math.ceil(m**3 / (6 * d * d)) for m in (d + 1, P))
     hist = [L]
     while bool(live.any()) and len(hist) < max_iter:
         was_live = live
@@ -450,13 +479,14 @@ def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=Non
                 for kept, fresh in zip(cv, new, strict=True):
                     kept[idx] = fresh
             stale = stale & ~need
-            n_estep = n_estep + need.long() * (P + 1)
+            n_estep = n_estep + need.long()
         thr = tol * torch.maximum(L.abs(), scale)
         th_t, L_t = theta, L
         accept = torch.zeros_like(live)
         tiny = torch.zeros_like(live)
         if bool(newton.any()):
-            th_n, ok, gain, pred = _newton_step(theta, cv, lam, lb)
+            th_n, ok, gain, pred, dense = _newton_step(theta, cv, lam, lb)
+            n_estep = n_estep + newton.long() * torch.where(dense, dense_cost, solve_cost)
             L_n = _theta_bound(th_n, *flat, psx_c, hp)
             tiny = newton & ok & (gain <= 1e-15 * torch.maximum(L.abs(), scale))
             accept = newton & ok & ~tiny & (L_n > L)  # NaN fails
