@@ -25,12 +25,12 @@ the state); `fit` is the entry point. Three methods:
 
 from __future__ import annotations
 
-import contextlib
 import math
 from typing import NamedTuple
 
 import torch
 
+from .._threads import single_thread
 from . import _jfa_bound as jb
 from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
 
@@ -410,26 +410,12 @@ def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     )
 
 
-@contextlib.contextmanager
-def _one_thread():
-    """Run torch (and its LAPACK) on one thread: the optimiser's kernels are small (``r x r``
-    blocks, ``(d + 1) x (d + 1)`` matrices), and waking threads for each costs more than it
-    gives. On a busy 2-core machine, MKL's two threads took 1.9 s of Cholesky calls in a
-    d = 8 fit that one thread does in 0.01 s."""
-    threads = torch.get_num_threads()
-    if threads == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
-
-
 def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
-    """`_run_newton` on one thread (`_one_thread`)."""
-    with _one_thread():
+    """`_run_newton` on one thread (`torchjfa._threads.single_thread`): the optimiser's kernels
+    are small (``r x r`` blocks, ``(d + 1) x (d + 1)`` matrices); on a busy 2-core machine,
+    MKL's two threads took 1.9 s of Cholesky calls in a d = 8 fit that one thread does in
+    0.01 s."""
+    with single_thread():
         return _run_newton(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol, bar=bar)
 
 
