@@ -308,8 +308,10 @@ def _newton_step(theta, cv: Curvature, lam, lb):
     + L^T W L`` (Woodbury), and where ``A`` is positive definite, ``M`` is iff ``C`` is (the
     nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
     Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
-    Problems whose ``A`` is not positive definite take the dense ``P x P`` solve (``dense``,
-    ``(B,)`` bool, says which).
+    Where ``A`` is not positive definite, the eigenvector ``x`` of each input's lowest block
+    eigenvalue (and the ``log psi_y`` axis) is tried: ``x^T M x <= 0`` proves ``M`` indefinite
+    (``x^T M x`` needs only ``J x``, two numbers per input). Problems without such proof take the
+    dense ``P x P`` solve (``dense``, ``(B,)`` bool, says which).
     """
     free, damp = _damping(theta, cv, lam, lb)
     g = cv.g * free
@@ -352,8 +354,18 @@ def _newton_step(theta, cv: Curvature, lam, lb):
     )
     a_pd = (info == 0).all(-1) & (a_psy > 0)
     ok = a_pd & (info_c == 0) & torch.isfinite(delta).all(-1)
-    if not bool(a_pd.all()):  # the dense solve decides where A is not positive definite
-        idx = (~a_pd).nonzero()[:, 0]
+    finite = torch.isfinite(A).all((-3, -2, -1)) & torch.isfinite(W).all((-2, -1))
+    dense = ~a_pd & finite  # (not finite: no step)
+    if bool(dense.any()):  # x^T M x <= 0 for a block's lowest eigenvector: M is not p.d.
+        evals, evecs = torch.linalg.eigh(torch.where(finite[:, None, None, None], A, 0.0))
+        x = evecs[..., 0]  # (B, d, r)
+        a, c = (jk_t * x).sum(-1), (jq_t * x).sum(-1)
+        w_kc, w_cc = W[:, :d, d], W[:, d, d]
+        curv = evals[..., 0] + 2.0 * w_kc * a * c + w_cc[:, None] * c * c
+        indefinite = (curv <= 0).any(-1) | (a_psy + w_cc * psy * psy <= 0)
+        dense = dense & ~indefinite
+    if bool(dense.any()):  # the dense solve decides the rest
+        idx = dense.nonzero()[:, 0]
         sub = Curvature(*(t[idx] for t in cv))
         M = -dense_hessian(sub) * (free[idx, :, None] & free[idx, None, :])
         M = M + torch.diag_embed(lam_d[idx])
@@ -365,7 +377,7 @@ def _newton_step(theta, cv: Curvature, lam, lb):
     step = trial - theta
     # the quadratic model's gain g.s - s^T M s / 2, with M s = g - lam D s on the free rows
     pred = 0.5 * ((g * step).sum(-1) + lam * (damp * step * step * free).sum(-1))
-    return trial, ok, (g * step).sum(-1), pred, ~a_pd
+    return trial, ok, (g * step).sum(-1), pred, dense
 
 
 def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
