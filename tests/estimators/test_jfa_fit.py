@@ -9,6 +9,7 @@ import torch
 from torchjfa.estimators import JFA, BayesianJFA
 from torchjfa.estimators import _jfa_bound as jb
 from torchjfa.estimators import _jfa_fit as jf
+from torchjfa.estimators import _jfa_newton as jn
 from torchjfa.stats import Moments
 
 F64 = torch.float64
@@ -61,8 +62,8 @@ def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(
     theta = jf._pack(st, psy, hp)
     pc = st[jb.PX][None]
     batch = jb.Stats(*(t[None] for t in S))
-    cv = jf._derivatives(theta[None], batch, pc, hp)
-    g, H = cv.g, jf.dense_hessian(cv)
+    cv = jn.derivatives(theta[None], batch, pc, hp)
+    g, H = cv.g, jn.dense_hessian(cv)
 
     def f(th):
         return jf._theta_bound(th[None], *batch, pc, hp)[0]
@@ -215,15 +216,15 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
             st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
             theta = jf._pack(st, psy, hp)[None]
             batch = jb.Stats(*(t[None] for t in S))
-            cv = jf._derivatives(theta, batch, st[jb.PX][None], hp)
-            H = jf.dense_hessian(cv)
+            cv = jn.derivatives(theta, batch, st[jb.PX][None], hp)
+            H = jn.dense_hessian(cv)
             # hold a few coordinates: the bound at theta where the gradient points below it
             lb = torch.where(
                 (cv.g <= 0) & (torch.arange(theta.shape[-1]) % 3 == it % 3), theta, -torch.inf
             )[0]
             for lam in (1e-6, 1e-3, 1.0, 1e2):
                 lam_t = torch.full((1,), lam, dtype=F64)
-                trial, ok, gain, _, _ = jf._newton_step(theta, cv, lam_t, lb)
+                trial, ok, gain, _, _ = jn.newton_step(theta, cv, lam_t, lb)
                 delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb)
                 assert bool(ok) == bool(ok_ref)
                 verdicts.add(bool(ok))

@@ -10,9 +10,9 @@ the state); `fit` is the entry point. Three methods:
 - ``"newton"``: Levenberg-Marquardt-damped Newton steps on the bound with Q(z, t) and Q(alpha)
   optimised out (`_jfa_bound.reduced_bound`), in the coordinates ``<w_z>, <w_x>, log V_z,
   log V_x, log psi_z, log psi_x, log psi_y`` (the floors as bounds of a projected step), with
-  the exact Hessian from ``torch.func``. When Newton has converged, the prune move of the
-  fitting note is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with
-  ``psi_xm = v_m`` when alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged);
+  the exact Hessian in factored form, solved through its structure (``_jfa_newton.py``). When
+  Newton has converged, the prune move of the fitting note is tried on every input at once
+  (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm = v_m`` when alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged);
   the improving prunes are kept together (or the best one alone) and Newton resumes. Every
   step, damped or a prune, is kept only if the bound does not fall, so the recorded bound never
   decreases; near the optimum the steps converge quadratically, so the answer does not depend
@@ -33,6 +33,7 @@ import torch
 from .._threads import single_thread
 from . import _jfa_bound as jb
 from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
+from ._jfa_newton import derivatives, newton_step
 
 REASONS = ("max_iter", "bound", "coef")
 _LM_START = 1e-3  # Levenberg-Marquardt damping, relative to the Hessian's diagonal
@@ -194,192 +195,6 @@ def _theta_bound(theta, xx, xy, yy, n, psx_c, hp: Hyper) -> torch.Tensor:
     return jb.reduced_bound(Stats(xx, xy, yy, n), *_unpack(theta, psx_c, hp), hp)
 
 
-class Curvature(NamedTuple):
-    """The gradient ``g (B, P)`` of the bound at ``theta (B, P)`` (``P = r d + 1``, see
-    `_pack`) and its Hessian in factored form ``H = blockdiag(hb, hpsy) + J^T G J``: ``hb
-    (B, r, r, d)`` each input's own block, ``hpsy (B,)`` that of ``log psi_y``; ``J`` the
-    Jacobian of ``(k, c)``, whose row ``k_m`` is ``jk (B, r, d)`` on input m's coordinates
-    and whose row ``c`` is ``jq (B, r, d)`` and ``psy (B,)``; ``G`` the Hessian of
-    ``g(k, c) = -N/2 log c - S_ee(k) / (2 c)``: ``-xx / c`` (``xx (B, d, d)``, ``c (B,)``),
-    ``gkc (B, d)``, ``gcc (B,)``."""
-
-    g: torch.Tensor
-    hb: torch.Tensor
-    hpsy: torch.Tensor
-    jk: torch.Tensor
-    jq: torch.Tensor
-    psy: torch.Tensor
-    xx: torch.Tensor
-    c: torch.Tensor
-    gkc: torch.Tensor
-    gcc: torch.Tensor
-
-
-def _derivatives(theta, S: Stats, psx_c, hp: Hyper) -> Curvature:
-    """Gradient and factored Hessian (`Curvature`) of the bound at ``theta (B, P)``.
-
-    The bound is ``sum_m f_m(theta_m) + g(k, c)`` where input m's own terms ``f_m``, predictor
-    ``k_m`` and share ``q_m`` of ``c = psi_y + sum q`` depend on its coordinates ``theta_m``
-    alone. So the Hessian is block-diagonal (each input's Hessian of ``f_m + g_k k_m + g_c
-    q_m``, in second-order forward mode, `_jfa_bound.Jet`) plus ``J^T (d^2 g) J``. Cost: one
-    ``d x d`` mat-vec and ``O(r^2 d)``.
-    """
-    B, P = theta.shape
-    d = S.xy.shape[-1]
-    r = (P - 1) // d
-    own, k, q = jb.input_jets(theta[:, : r * d].reshape(B, r, d), psx_c, S.n, S.dg, hp)
-    psy = torch.exp(theta[:, -1])
-    c = psy + q.v.sum(-1)
-    s_xe = S.xy - (S.xx @ k.v[..., None])[..., 0]
-    S_ee = S.yy - (k.v * (S.xy + s_xe)).sum(-1)
-    g_k = s_xe / c[:, None]  # (B, d)
-    g_c = -0.5 * S.n / c + 0.5 * S_ee / (c * c)
-    g_cc = 0.5 * S.n / (c * c) - S_ee / (c * c * c)
-    grad = own.g + g_k[:, None] * k.g + g_c[:, None, None] * q.g
-    hb = own.h + g_k[:, None, None] * k.h + g_c[:, None, None, None] * q.h
-    g = torch.cat([grad.expand(B, r, d).reshape(B, r * d), (g_c * psy)[:, None]], -1)
-    return Curvature(
-        g,
-        hb.expand(B, r, r, d),
-        g_c * psy,
-        k.g.expand(B, r, d),
-        q.g.expand(B, r, d),
-        psy,
-        S.xx,
-        c,
-        -s_xe / (c * c)[:, None],
-        g_cc,
-    )
-
-
-def _jacobian(cv: Curvature) -> torch.Tensor:
-    """``J`` of `Curvature` as a dense ``(B, d + 1, P)`` matrix."""
-    B, r, d = cv.jk.shape
-    Jk = torch.diag_embed(cv.jk).permute(0, 2, 1, 3).reshape(B, d, r * d)  # (m, (t, m))
-    Jc = torch.cat([cv.jq.reshape(B, 1, r * d), cv.psy[:, None, None]], -1)
-    return torch.cat([torch.nn.functional.pad(Jk, (0, 1)), Jc], -2)
-
-
-def _coupling(cv: Curvature) -> torch.Tensor:
-    """``G`` of `Curvature`, ``(B, d + 1, d + 1)``."""
-    top = torch.cat([-cv.xx / cv.c[:, None, None], cv.gkc[..., None]], -1)
-    return torch.cat([top, torch.cat([cv.gkc, cv.gcc[:, None]], -1)[:, None]], -2)
-
-
-def dense_hessian(cv: Curvature) -> torch.Tensor:
-    """The Hessian of `Curvature` as a dense ``(B, P, P)`` matrix (a reference for the tests
-    and for `_newton_step` where the structured solve does not apply)."""
-    B, r, d = cv.jk.shape
-    blk = torch.diag_embed(cv.hb).permute(0, 1, 3, 2, 4).reshape(B, r * d, r * d)
-    H = torch.nn.functional.pad(blk, (0, 1, 0, 1))
-    H[:, -1, -1] = cv.hpsy
-    J = _jacobian(cv)
-    return H + J.mT @ _coupling(cv) @ J
-
-
-def _damping(theta, cv: Curvature, lam, lb):
-    """The free coordinates (``(B, P)`` bool: not at a lower bound with the gradient pointing
-    below it) and Marquardt's damping ``lam diag|H|`` of the free ones, ``(B, P)``."""
-    free = ~((theta <= lb) & (cv.g <= 0))
-    B, r, d = cv.jk.shape
-    wcc = -cv.gcc[:, None, None]
-    dk = -torch.diagonal(cv.hb, dim1=1, dim2=2).mT  # (B, r, d)
-    dk = dk + cv.jk * cv.jk * (cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None])[:, None]
-    dk = dk - 2.0 * cv.gkc[:, None] * cv.jk * cv.jq + wcc * cv.jq * cv.jq
-    diag = torch.cat([dk.reshape(B, r * d), (-cv.hpsy - cv.gcc * cv.psy * cv.psy)[:, None]], -1)
-    diag = diag.abs() * free
-    scale = diag.amax(-1, keepdim=True).clamp_min(1e-300)
-    return free, torch.where(free, diag.clamp_min(1e-12 * scale), 1.0)
-
-
-def _newton_step(theta, cv: Curvature, lam, lb):
-    """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted, dense)``.
-
-    Coordinates at their lower bound with the gradient pointing below it are held; the others
-    solve ``(-H + lam diag|H|) delta = g`` (Marquardt's scaling); ``ok`` is False where that
-    matrix is not positive definite; ``gain = g . delta`` (the first-order gain of the step),
-    ``predicted`` the gain of the quadratic model.
-
-    The matrix is ``M = A + J^T W J`` (`Curvature`): ``A`` block-diagonal (each input's
-    ``r x r`` block with the diagonal of the ``k``-``k`` coupling, ``(X^T X)_mm / c``
-    ``jk jk^T``, moved into it), ``W`` the rest of ``-G``, ``(d + 1) x (d + 1)``. With ``K =
-    J A^{-1} J^T = L L^T`` (``L`` lower-triangular arrowhead: ``K``'s ``k``-``k`` part is
-    diagonal), ``M^{-1} = A^{-1} - A^{-1} J^T (W - W L C^{-1} L^T W) J A^{-1}`` with ``C = I
-    + L^T W L`` (Woodbury), and where ``A`` is positive definite, ``M`` is iff ``C`` is (the
-    nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
-    Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
-    Where ``A`` is not positive definite, the eigenvector ``x`` of each input's lowest block
-    eigenvalue (and the ``log psi_y`` axis) is tried: ``x^T M x <= 0`` proves ``M`` indefinite
-    (``x^T M x`` needs only ``J x``, two numbers per input). Problems without such proof take the
-    dense ``P x P`` solve (``dense``, ``(B,)`` bool, says which).
-    """
-    free, damp = _damping(theta, cv, lam, lb)
-    g = cv.g * free
-    B, r, d = cv.jk.shape
-    fb = free[:, : r * d].reshape(B, r, d)
-    fp = free[:, -1]
-    jk, jq, psy = cv.jk * fb, cv.jq * fb, cv.psy * fp
-    w_kk = cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None]  # (B, d)
-    A = (-cv.hb + w_kk[:, None, None] * jk[:, :, None] * jk[:, None, :]) * (
-        fb[:, :, None] & fb[:, None, :]
-    )
-    lam_d = torch.where(free, lam[:, None] * damp, 1.0)
-    A = A.permute(0, 3, 1, 2) + torch.diag_embed(lam_d[:, : r * d].reshape(B, r, d).mT)
-    a_psy = torch.where(fp, -cv.hpsy, 0.0) + lam_d[:, -1]  # (B,)
-    chol, info = torch.linalg.cholesky_ex(A)  # (B, d, r, r)
-    rhs = torch.stack([g[:, : r * d].reshape(B, r, d), jk, jq], -1).permute(0, 2, 1, 3)
-    z, yk, yq = torch.cholesky_solve(rhs, chol).unbind(-1)  # (B, d, r) each
-    jk_t, jq_t = jk.mT, jq.mT  # (B, d, r)
-    # K = J A^-1 J^T and b = J A^-1 g
-    kkk, kkc = (jk_t * yk).sum(-1), (jk_t * yq).sum(-1)  # (B, d)
-    kcc = (jq_t * yq).sum((-2, -1)) + psy * psy / a_psy
-    b = torch.cat(
-        [(jk_t * z).sum(-1), ((jq_t * z).sum((-2, -1)) + psy * g[:, -1] / a_psy)[:, None]], -1
-    )
-    s = torch.sqrt(kkk.clamp_min(0.0))
-    lc = torch.where(kkk > 0, kkc / torch.where(kkk > 0, s, 1.0), 0.0)
-    lcc = torch.sqrt((kcc - (lc * lc).sum(-1)).clamp_min(0.0))
-    Lm = torch.diag_embed(torch.cat([s, lcc[:, None]], -1))
-    Lm[:, d, :d] = lc
-    W = -_coupling(cv)
-    W.diagonal(dim1=-2, dim2=-1)[:, :d] -= w_kk
-    C = Lm.mT @ W @ Lm
-    C.diagonal(dim1=-2, dim2=-1).add_(1.0)
-    chol_c, info_c = torch.linalg.cholesky_ex(C)
-    Wb = (W @ b[..., None])[..., 0]
-    u = Wb - (W @ (Lm @ torch.cholesky_solve((Lm.mT @ Wb[..., None]), chol_c)))[..., 0]
-    step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
-    delta = torch.cat(
-        [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
-    )
-    a_pd = (info == 0).all(-1) & (a_psy > 0)
-    ok = a_pd & (info_c == 0) & torch.isfinite(delta).all(-1)
-    finite = torch.isfinite(A).all((-3, -2, -1)) & torch.isfinite(W).all((-2, -1))
-    dense = ~a_pd & finite  # (not finite: no step)
-    if bool(dense.any()):  # x^T M x <= 0 for a block's lowest eigenvector: M is not p.d.
-        evals, evecs = torch.linalg.eigh(torch.where(finite[:, None, None, None], A, 0.0))
-        x = evecs[..., 0]  # (B, d, r)
-        a, c = (jk_t * x).sum(-1), (jq_t * x).sum(-1)
-        w_kc, w_cc = W[:, :d, d], W[:, d, d]
-        curv = evals[..., 0] + 2.0 * w_kc * a * c + w_cc[:, None] * c * c
-        indefinite = (curv <= 0).any(-1) | (a_psy + w_cc * psy * psy <= 0)
-        dense = dense & ~indefinite
-    if bool(dense.any()):  # the dense solve decides the rest
-        idx = dense.nonzero()[:, 0]
-        sub = Curvature(*(t[idx] for t in cv))
-        M = -dense_hessian(sub) * (free[idx, :, None] & free[idx, None, :])
-        M = M + torch.diag_embed(lam_d[idx])
-        chol_m, info_m = torch.linalg.cholesky_ex(M)
-        delta[idx] = torch.cholesky_solve(g[idx, :, None], chol_m)[..., 0]
-        ok[idx] = (info_m == 0) & torch.isfinite(delta[idx]).all(-1)
-    delta = torch.where(ok[..., None], delta, 0.0)
-    trial = torch.maximum(theta + delta, lb)
-    step = trial - theta
-    # the quadratic model's gain g.s - s^T M s / 2, with M s = g - lam D s on the free rows
-    pred = 0.5 * ((g * step).sum(-1) + lam * (damp * step * step * free).sum(-1))
-    return trial, ok, (g * step).sum(-1), pred, dense
-
-
 def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     """The prune move on every input (module docstring): ``(theta_trial, L_trial, any)``.
 
@@ -470,9 +285,9 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         if bool(need.any()):
             idx = need.nonzero()[:, 0]
             sub = Stats(*(t[idx] for t in flat))
-            new = _derivatives(theta[idx], sub, psx_c[idx], hp)
+            new = derivatives(theta[idx], sub, psx_c[idx], hp)
             if cv is None:  # the first iteration differentiates every problem
-                cv = Curvature(*(t.contiguous() for t in new))
+                cv = type(new)(*(t.contiguous() for t in new))
             else:
                 for kept, fresh in zip(cv, new, strict=True):
                     kept[idx] = fresh
@@ -483,7 +298,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         accept = torch.zeros_like(live)
         tiny = torch.zeros_like(live)
         if bool(newton.any()):
-            th_n, ok, gain, pred, dense = _newton_step(theta, cv, lam, lb)
+            th_n, ok, gain, pred, dense = newton_step(theta, cv, lam, lb)
             n_estep = n_estep + newton.long() * torch.where(dense, dense_cost, solve_cost)
             L_n = _theta_bound(th_n, *flat, psx_c, hp)
             tiny = newton & ok & (gain <= 1e-15 * torch.maximum(L.abs(), scale))
