@@ -13,9 +13,9 @@ the state); `fit` is the entry point. Three methods:
   the exact Hessian in factored form, solved through its structure (``_jfa_newton.py``). When
   Newton has converged, the prune move of the fitting note is tried on every input at once
   (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm = v_m`` when alpha is shared and psi_x
-  free; ``v``, ``tau`` and ``c`` unchanged); the improving prunes are kept together (or the best one alone) and Newton resumes. Every
-  step, damped or a prune, is kept only if the bound does not fall, so the recorded bound never
-  decreases; near the optimum the steps converge quadratically, so the answer does not depend
+  free; ``v``, ``tau`` and ``c`` unchanged); the improving prunes are kept together (or the
+  best one alone) and Newton resumes. Every step, damped or a prune, is kept only if the bound
+  does not fall, so the recorded bound never decreases; near the optimum the steps converge quadratically, so the answer does not depend
   on the path to it (the chunking of the data, a batch or a single fit) beyond round-off.
 - ``"closed"`` (maximum likelihood only): the likelihood depends on the state only through
   each input's variance ``v = diag(X^T X) / N``, the predictor ``k`` (OLS) and the residual
