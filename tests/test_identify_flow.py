@@ -136,6 +136,11 @@ def test_the_named_estimator_takes_the_period_noise_where_it_can():
     assert ident.make_estimator(torchjfa.Options(estimator=mine), noise) is mine
 
 
+def test_joint_terms_may_be_written_as_on_the_command_line():
+    assert torchjfa.Options(friction="viscous, coulomb").friction == ("viscous", "coulomb")
+    assert torchjfa.Options(friction=["offset"]).friction == ("offset",)
+
+
 @pytest.mark.parametrize(
     "changes, message",
     [
@@ -143,6 +148,8 @@ def test_the_named_estimator_takes_the_period_noise_where_it_can():
         ({"friction": ("viscous", "stiction")}, "unknown joint term"),
         ({"validation": 1.0}, "validation must be a fraction"),
         ({"cutoff": -3.0}, "cutoff must be"),
+        ({"cutoff": "high"}, "cutoff must be"),
+        ({"validation": None}, "validation must be a fraction"),
         ({"input_noise": "guess"}, "input_noise must be one of"),
         ({"description_prior": 1.0, "project": False}, "needs project=True"),
         ({"parametrization": "cholesky"}, "parametrization must be one of"),

@@ -132,10 +132,13 @@ class Options:
     compute: Compute = field(default_factory=Compute)
 
     def __post_init__(self) -> None:
-        bad = [k for k in self.friction if k not in JOINT_TERMS]
+        terms = self.friction
+        if isinstance(terms, str):  # "viscous,coulomb", as on the command line
+            terms = [k.strip() for k in terms.split(",") if k.strip()]
+        bad = [k for k in terms if k not in JOINT_TERMS]
         if bad:
             raise IdentificationError(f"unknown joint term(s) {bad}; choose from {JOINT_TERMS}")
-        object.__setattr__(self, "friction", tuple(self.friction))
+        object.__setattr__(self, "friction", tuple(terms))
         _choice("filter", self.filter, ("butterworth", "savgol"))
         _choice("velocity", self.velocity, ("auto", "measured", "differentiate"))
         _choice("weighting", self.weighting, ("residual", "none"))
@@ -146,9 +149,11 @@ class Options:
             _choice("estimator", self.estimator, available())
         if isinstance(self.input_noise, str):
             _choice("input_noise", self.input_noise, ("auto", "learn", "periods", "propagated"))
-        if self.cutoff != "auto" and not 0 < float(self.cutoff) < float("inf"):
-            raise IdentificationError(f"cutoff must be 'auto' or a positive Hz, got {self.cutoff}")
-        if not 0.0 < float(self.validation) < 1.0:
+        if self.cutoff != "auto" and not 0 < _number(self.cutoff) < float("inf"):
+            raise IdentificationError(
+                f"cutoff must be 'auto' or a positive Hz, got {self.cutoff!r}"
+            )
+        if not 0.0 < _number(self.validation) < 1.0:
             raise IdentificationError(
                 f"validation must be a fraction in (0, 1), got {self.validation}"
             )
@@ -160,6 +165,14 @@ class Options:
     def replace(self, **changes) -> Options:
         """A copy with ``changes`` (``Options`` is frozen)."""
         return replace(self, **changes)
+
+
+def _number(value) -> float:
+    """``value`` as a float, NaN where it is not a number (so that the range checks refuse it)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
 
 
 def _choice(name: str, value, allowed: tuple[str, ...]) -> None:
