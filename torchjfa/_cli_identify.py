@@ -15,21 +15,19 @@ import sys
 from pathlib import Path
 
 from .estimators import available as _estimators
-from .identification._options import JOINT_TERMS as _FRICTION
 from .identification._options import IdentificationError as UsageError
+from .identification._options import joint_terms
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
 
 # ------------------------------------------------------------------------------ argument types
-def _friction(text: str) -> tuple[str, ...]:
-    if text.strip().lower() in ("", "none"):
-        return ()
-    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
-    bad = [k for k in kinds if k not in _FRICTION]
-    if bad:
-        raise argparse.ArgumentTypeError(f"unknown friction term(s) {bad}; choose from {_FRICTION}")
-    return kinds
+def friction_terms(text: str) -> tuple[str, ...]:
+    """``--friction``: `torchjfa.identification.joint_terms` of the text, as an argument type."""
+    try:
+        return joint_terms(text)
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _columns(text: str | None) -> dict[str, str] | None:
@@ -203,7 +201,7 @@ def add_identify(sub) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--friction",
-        type=_friction,
+        type=friction_terms,
         default=("viscous", "coulomb", "offset"),
         help="joint terms, comma separated from viscous,coulomb,offset (friction) and armature "
         "(reflected motor inertia), or 'none'",

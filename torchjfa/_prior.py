@@ -11,11 +11,11 @@ blocks of the training data (`choose_prior_weight`, `pick_prior_weight`).
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping, Sequence
 
 import torch
 
+from .estimators._jackknife import refit_without
 from .physical import parameter_scales
 from .physical import project as _project
 from .stats import Moments
@@ -91,12 +91,7 @@ def choose_prior_weight(
     rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
     n = 0.0
     for k, held in enumerate(folds):
-        train = list(folds[:k]) + list(folds[k + 1 :])
-        est = copy.deepcopy(estimator)
-        if hasattr(est, "verbose"):
-            est.verbose = False
-        moments = sum(train[1:], train[0].copy())
-        est.fit_moments(train if est.needs_folds else moments)
+        est, moments = refit_without(estimator, folds, k)
         theta_hat = est.coef_.detach().to(torch.float64)
         fold_noise = noise
         if fold_noise is None and hasattr(est, "noise_x_"):

@@ -11,7 +11,23 @@ from .._progress import progress_bar
 from ..stats import Moments
 from ._base import LinearEstimator
 
-__all__ = ["jackknife"]
+__all__ = ["jackknife", "refit_without"]
+
+
+def refit_without(
+    estimator: LinearEstimator, folds: Sequence[Moments], k: int
+) -> tuple[LinearEstimator, Moments]:
+    """A quiet copy of ``estimator`` (same hyper-parameters) fitted on all folds but the
+    ``k``-th: on the remaining folds where it cross-validates (`LinearEstimator.needs_folds`),
+    else on their sum. Returns ``(fitted copy, the remaining folds' summed Moments)``; the
+    estimator itself is not modified."""
+    rest = list(folds[:k]) + list(folds[k + 1 :])
+    total = sum(rest[1:], rest[0].copy())
+    est = copy.deepcopy(estimator)
+    if hasattr(est, "verbose"):
+        est.verbose = False
+    est.fit_moments(rest if est.needs_folds else total)
+    return est, total
 
 
 def jackknife(
@@ -47,12 +63,8 @@ def jackknife(
     coefs = []
     with progress_bar(total=K, desc="jackknife", enabled=progress, unit="fit") as bar:
         for k in range(K):
-            rest = folds[:k] + folds[k + 1 :]
-            est = copy.deepcopy(estimator)
-            if hasattr(est, "verbose"):
-                est.verbose = False
-            data = rest if est.needs_folds else sum(rest[1:], rest[0].copy())
-            coefs.append(est.fit_moments(data).coef_.detach().to(torch.float64))
+            est, _ = refit_without(estimator, folds, k)
+            coefs.append(est.coef_.detach().to(torch.float64))
             bar.update(1)
     C = torch.stack(coefs)
     var = (K - 1) / K * (C - C.mean(0)).pow(2).sum(0)

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._cli_identify import friction_terms
+
 __all__ = ["add_parser", "run", "simulation_reference"]
 
 _DEFAULT_RATE = 200.0
@@ -42,12 +44,6 @@ def _box(text: str):
         return WorkspaceBox(parts[0], _numbers(parts[1]), _numbers(parts[2]))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _friction(text: str) -> tuple[str, ...]:
-    if text.strip().lower() in ("", "none"):
-        return ()
-    return tuple(k.strip() for k in text.split(",") if k.strip())  # the model checks the names
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -77,7 +73,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="D-optimality (-log det), log condition number or E-optimality (-log lambda_min)",
     )  # fmt: skip
     p.add_argument(
-        "--friction", type=_friction, default=("viscous",),
+        "--friction", type=friction_terms, default=("viscous",),
         help="joint terms in the parameters, comma separated (viscous, coulomb, offset, ...) "
         "or 'none'",
     )  # fmt: skip

@@ -170,7 +170,8 @@ def identify(
     }
     report = validate(result, data, noise, record)
     out = Identification(model, raw, data, noise, result, report, options, seconds)
-    for line in out.warnings + ([out.problem()] if out.problem() else []):
+    problem = out.problem()
+    for line in out.warnings + ([problem] if problem else []):
         _warnings.warn(line, IdentificationWarning, stacklevel=2)
     return out
 

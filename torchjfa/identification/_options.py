@@ -8,16 +8,19 @@ from dataclasses import dataclass, field, fields, replace
 
 import torch
 
+from ..dynamics import FRICTION_KINDS
+
 __all__ = [
     "Compute",
     "Options",
     "IdentificationError",
     "IdentificationWarning",
     "JOINT_TERMS",
+    "joint_terms",
 ]
 
 #: the joint terms `Options.friction` takes: friction, and the motor's reflected inertia
-JOINT_TERMS = ("viscous", "coulomb", "offset", "armature")
+JOINT_TERMS = FRICTION_KINDS
 
 
 class IdentificationError(ValueError):
@@ -132,13 +135,7 @@ class Options:
     compute: Compute = field(default_factory=Compute)
 
     def __post_init__(self) -> None:
-        terms = self.friction
-        if isinstance(terms, str):  # "viscous,coulomb", as on the command line
-            terms = [k.strip() for k in terms.split(",") if k.strip()]
-        bad = [k for k in terms if k not in JOINT_TERMS]
-        if bad:
-            raise IdentificationError(f"unknown joint term(s) {bad}; choose from {JOINT_TERMS}")
-        object.__setattr__(self, "friction", tuple(terms))
+        object.__setattr__(self, "friction", joint_terms(self.friction))
         _choice("filter", self.filter, ("butterworth", "savgol"))
         _choice("velocity", self.velocity, ("auto", "measured", "differentiate"))
         _choice("weighting", self.weighting, ("residual", "none"))
@@ -165,6 +162,23 @@ class Options:
     def replace(self, **changes) -> Options:
         """A copy with ``changes`` (``Options`` is frozen)."""
         return replace(self, **changes)
+
+
+def joint_terms(value) -> tuple[str, ...]:
+    """Joint terms from `JOINT_TERMS`, given as a sequence or as the command line writes them
+    (``"viscous,coulomb"``; ``"none"`` or ``""`` for none), checked.
+
+    Raises:
+        IdentificationError: on a term that is not one of `JOINT_TERMS`.
+    """
+    if isinstance(value, str):
+        text = value.strip()
+        value = () if text.lower() in ("", "none") else [k.strip() for k in text.split(",")]
+    terms = tuple(k for k in value if k)
+    bad = [k for k in terms if k not in JOINT_TERMS]
+    if bad:
+        raise IdentificationError(f"unknown joint term(s) {bad}; choose from {JOINT_TERMS}")
+    return terms
 
 
 def _number(value) -> float:
