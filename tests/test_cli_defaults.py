@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from torchjfa.cli import main
+from torchjfa.data import COULOMB_GRID
+from torchjfa.io import read_identified
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +59,10 @@ def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
     assert f"- cut-off: {cutoff:g} Hz, chosen by held-out torque prediction over 2..30 Hz" in md
     assert "estimator: `OLS(" in md
     assert "friction viscous, coulomb, offset" in md
+    # the Coulomb term's smoothing velocity is chosen with the cut-off and kept in the model
+    v_c = report["settings"]["coulomb_velocity"]
+    assert v_c in COULOMB_GRID and f"v_c = {v_c:g} rad/s" in md
+    assert read_identified(out / "model.npz").model.coulomb_velocity == v_c
     # log-Cholesky: fully consistent, and the header says the table's verdict
     assert report["consistent"]
     assert _verdicts(md) == ("yes", "yes")
@@ -100,3 +106,11 @@ def test_a_bad_cut_off_is_refused(head_csv, tmp_path, capsys, bad):
         main(["identify", "head", str(head_csv), "--out", str(tmp_path), "--cutoff", bad])
     assert exc.value.code == 2
     assert "expected 'auto' or a positive cut-off in Hz" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", ["-0.1", "fast", "inf"])
+def test_a_bad_coulomb_velocity_is_refused(head_csv, tmp_path, capsys, bad):
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "head", str(head_csv), "--out", str(tmp_path), "--coulomb-velocity", bad])
+    assert exc.value.code == 2
+    assert "expected 'auto' or a smoothing velocity >= 0" in capsys.readouterr().err

@@ -149,6 +149,8 @@ def test_joint_terms_may_be_written_as_on_the_command_line():
         ({"validation": 1.0}, "validation must be a fraction"),
         ({"cutoff": -3.0}, "cutoff must be"),
         ({"cutoff": "high"}, "cutoff must be"),
+        ({"coulomb_velocity": -0.1}, "coulomb_velocity must be"),
+        ({"coulomb_velocity": "wide"}, "coulomb_velocity must be"),
         ({"validation": None}, "validation must be a fraction"),
         ({"input_noise": "guess"}, "input_noise must be one of"),
         ({"description_prior": 1.0, "project": False}, "needs project=True"),
@@ -198,7 +200,7 @@ def test_auto_input_noise_without_periods_is_propagated_where_the_estimator_take
     noise = ident.choose_noise(model, data, options)
     assert noise.mode == "propagated" and noise.period_noise is None and not noise.warnings
     direct = propagated_noise(
-        model,
+        data.model_for(model),  # the Coulomb term as the preparation chose it
         data.raw,
         data.preparation,
         joint_weights=noise.joint_weights,

@@ -37,6 +37,10 @@ def test_the_cut_off_chosen_on_the_training_part_is_inside_the_grid(script):
     assert choice.grid_hz[0] < choice.cutoff_hz < choice.grid_hz[-1]
     assert choice.scores[choice.grid_hz.index(choice.best_hz)] == min(choice.scores)
     assert min(choice.scores) < min(choice.scores[0], choice.scores[-1])
+    # the real joints' dry friction changes sign over a band of velocities: at the chosen
+    # cut-off a smoothed Coulomb term predicts the held-out blocks better than sign(qd)
+    assert choice.coulomb_velocity > 0.0
+    assert min(choice.coulomb_scores) < choice.coulomb_scores[choice.coulomb_grid.index(0.0)]
 
 
 def test_the_script_runs_in_smoke_size(script):

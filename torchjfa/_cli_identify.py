@@ -65,6 +65,20 @@ def _period(text: str):
         ) from None
 
 
+def _coulomb_velocity(text: str):
+    if text == "auto":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto' or a smoothing velocity >= 0 in rad/s, got {text!r}"
+        )
+    return value
+
+
 def _cutoff(text: str):
     if text == "auto":
         return text
@@ -118,6 +132,7 @@ def identify_options(args):
         drop_nan=args.drop_nan,
         max_seconds=args.smoke_seconds if args.smoke else None,
         cutoff=args.cutoff,
+        coulomb_velocity=args.coulomb_velocity,
         filter=args.filter,
         velocity=args.velocity,
         period=args.period,
@@ -218,7 +233,7 @@ def add_identify(sub) -> argparse.ArgumentParser:
 
 def _add_preparation_arguments(p: argparse.ArgumentParser) -> None:
     """How the log is read, filtered, differentiated, cut and split (`torchjfa.data`)."""
-    from .data import DEFAULT_CUTOFF_HZ
+    from .data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
 
     p.add_argument(
         "--columns",
@@ -244,6 +259,15 @@ def _add_preparation_arguments(p: argparse.ArgumentParser) -> None:
         help="low-pass cut-off, Hz, or 'auto': the one of 2..30 Hz that predicts held-out "
         "torques best inside the training part (torchjfa.data.choose_cutoff; "
         f"{DEFAULT_CUTOFF_HZ:g} Hz, with a warning, where the log is too short to choose)",
+    )
+    p.add_argument(
+        "--coulomb-velocity",
+        type=_coulomb_velocity,
+        default="auto",
+        metavar="V",
+        help="smoothing velocity of the Coulomb friction term, rad/s: its column is "
+        "tanh(qd / V), sign(qd) for 0; 'auto' chooses it with the cut-off by the same held-out "
+        "prediction, from " + ", ".join(f"{v:g}" for v in COULOMB_GRID),
     )
     p.add_argument(
         "--filter",

@@ -172,7 +172,12 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
         *([f"- data: {settings['preparation']}"] if settings.get("preparation") else []),
         *([f"- cut-off: {settings['cutoff']}"] if settings.get("cutoff") else []),
         f"- model: {model.n_dof} joints, {model.n_params} parameters, friction "
-        f"{', '.join(model.friction) or 'none'}",
+        f"{', '.join(model.friction) or 'none'}"
+        + (
+            f" (Coulomb as tanh(qd / {model.coulomb_velocity:g} rad/s))"
+            if model.coulomb_velocity and "coulomb" in model.friction
+            else ""
+        ),
         f"- estimator: `{s['estimator']}`" + _noise_mode(settings, report.result.estimator),
         f"- convergence: {convergence}",
         *([f"- {warning}"] if warning else []),

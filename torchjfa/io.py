@@ -20,6 +20,8 @@ key                    shape, dtype        meaning
 ``source_xml``         (), str             the description's text (loads without the path)
 ``gravity``            (3,), float64       gravity in the root frame, m/s^2
 ``friction``           (n_friction,), str  friction terms per joint (`ParameterLayout`)
+``coulomb_velocity``   (), float64         the Coulomb term's smoothing velocity, rad/s (0:
+                                           ``sign(qd)``; optional, files without it read as 0)
 ``joint_names``        (n_dof,), str       the layout's joint order
 ``parameter_names``    (n_params,), str    the layout's parameter names
 ``theta``              (n_params,), float  the identified parameters
@@ -152,6 +154,7 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
         "source_xml": model.source_xml,
         "gravity": model.gravity,
         "friction": list(model.friction),
+        "coulomb_velocity": float(model.coulomb_velocity),
         "joint_names": list(model.joint_names),
         "parameter_names": list(model.parameter_names),
         "theta": theta.clone(),
@@ -159,7 +162,9 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
     }
 
 
-def _build_model(fmt: str, path: str, xml: str, gravity, friction) -> RigidBodyModel:
+def _build_model(
+    fmt: str, path: str, xml: str, gravity, friction, coulomb_velocity=0.0
+) -> RigidBodyModel:
     if fmt not in ("urdf", "mjcf"):
         raise ValueError(f"unknown description format {fmt!r}; expected 'urdf' or 'mjcf'")
     build = RigidBodyModel.from_urdf if fmt == "urdf" else RigidBodyModel.from_mjcf
@@ -169,7 +174,9 @@ def _build_model(fmt: str, path: str, xml: str, gravity, friction) -> RigidBodyM
     source = xml
     if path and Path(path).is_file() and Path(path).read_text() == xml:
         source = path
-    return build(source, friction=tuple(friction), gravity=gravity)
+    return build(
+        source, friction=tuple(friction), gravity=gravity, coulomb_velocity=float(coulomb_velocity)
+    )
 
 
 def identified_from_dict(data: dict) -> IdentifiedModel:
@@ -192,6 +199,7 @@ def identified_from_dict(data: dict) -> IdentifiedModel:
         str(data["source_xml"]),
         data["gravity"],
         [str(f) for f in data["friction"]],
+        data.get("coulomb_velocity", 0.0),
     )
     names = tuple(str(n) for n in data["parameter_names"])
     if model.parameter_names != names:

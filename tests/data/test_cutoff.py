@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchjfa.data import JointLog, LogError, choose_cutoff, cutoff_grid
+from torchjfa.data import COULOMB_GRID, JointLog, LogError, choose_cutoff, cutoff_grid
 
 RATE = 500.0
 
@@ -85,3 +85,57 @@ def test_bad_inputs_are_named():
         choose_cutoff(_Linear(), _log(seconds=3.0), grid_hz=(0.5, 4.0))
     with pytest.raises(LogError, match="below"):
         choose_cutoff(_Linear(), log, grid_hz=(300.0,))
+
+
+class _Dry(_Linear):
+    """`_Linear` plus viscous and Coulomb columns, the Coulomb one ``tanh(qd / v)`` (sign at 0),
+    with the `RigidBodyModel` interface `choose_cutoff` uses for it."""
+
+    friction = ("viscous", "coulomb")
+
+    def __init__(self, coulomb_velocity=0.0):
+        self.coulomb_velocity = coulomb_velocity
+
+    def with_coulomb_velocity(self, v):
+        return _Dry(v)
+
+    def regressor(self, q, qd, qdd, *, compiled=None):
+        v = self.coulomb_velocity
+        dry = torch.tanh(qd / v) if v else torch.sign(qd)
+        return torch.stack([qdd, qd, dry], dim=-1)  # (n, 1, 3)
+
+
+def _dry_log(v_true):
+    """`_log`'s motion with 0.3 N m of dry friction of smoothing velocity ``v_true`` added to
+    its torque (the motion's exact velocity, so the truth is the model with ``v_true``)."""
+    log = _log()
+    w = 2 * np.pi * np.array([0.4, 0.9, 1.3])
+    qd = np.cos(w[None] * log.t.numpy()[:, None]).sum(1)
+    dry = np.tanh(qd / v_true) if v_true else np.sign(qd)
+    tau = log.tau[:, 0].numpy() + 0.3 * dry
+    return JointLog(t=log.t, q=log.q, tau=tau[:, None], joint_names=("j",), source="sim")
+
+
+@pytest.mark.parametrize("v_true", [0.0, 0.02, 0.05, 0.1, 0.2])
+def test_the_coulomb_smoothing_velocity_of_the_data_is_chosen(v_true):
+    # noise-free torques: the model with the true smoothing velocity predicts the raw torque up
+    # to the filter's distortion of the states; every other one misses the friction's shape at
+    # each reversal, so the grid point of the truth scores best
+    choice = choose_cutoff(_Dry(), _dry_log(v_true), grid_hz=(4.0, 16.0), velocity="differentiate")
+    assert choice.coulomb_grid == COULOMB_GRID and v_true in COULOMB_GRID
+    assert choice.coulomb_velocity == v_true
+    best = COULOMB_GRID.index(v_true)
+    assert all(
+        s > choice.coulomb_scores[best] for i, s in enumerate(choice.coulomb_scores) if i != best
+    )
+    assert f"v_c = {v_true:g} rad/s" in choice.how
+
+
+def test_the_coulomb_velocity_is_kept_where_there_is_none_to_choose():
+    log = _dry_log(0.05)
+    kept = choose_cutoff(_Dry(0.1), log, grid_hz=(16.0,), velocity="differentiate", coulomb_grid=())
+    assert kept.coulomb_velocity is None and kept.coulomb_grid == () and "v_c" not in kept.how
+    plain = choose_cutoff(_Linear(), _log(), grid_hz=(16.0,), velocity="differentiate")
+    assert plain.coulomb_velocity is None
+    with pytest.raises(ValueError, match="coulomb_velocity"):
+        choose_cutoff(_Dry(), log, grid_hz=(16.0,), coulomb_grid=(0.05, -1.0))

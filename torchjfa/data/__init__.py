@@ -18,6 +18,7 @@ from ._checks import check_log as check_log
 from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
 from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage
+from ._cutoff import COULOMB_GRID as COULOMB_GRID
 from ._cutoff import CutoffChoice as CutoffChoice
 from ._cutoff import choose_cutoff as choose_cutoff
 from ._cutoff import cutoff_grid as cutoff_grid

@@ -23,7 +23,11 @@ drown in noise. `choose_cutoff` measures it:
    torque's variance, so that every joint counts); the choice is the LARGEST cut-off whose
    score lies within one standard error of the best one (the one-standard-error rule; the
    standard error of the score difference from contiguous blocks of the held-out samples): of
-   cut-offs the data cannot tell apart, the one that distorts the dynamics least.
+   cut-offs the data cannot tell apart, the one that distorts the dynamics least;
+5. where the model has a Coulomb term, each cut-off is scored with the best of a few smoothing
+   velocities ``v_c`` of it (`COULOMB_GRID`; the column ``tanh(qd / v_c)``, ``sign(qd)`` at 0),
+   and the chosen cut-off's best ``v_c`` is returned with it: real dry friction changes sign
+   over a band of velocities, and how wide it is, is a property of the robot the log shows.
 """
 
 from __future__ import annotations
@@ -34,10 +38,15 @@ from dataclasses import dataclass
 
 import torch
 
+from .._threads import single_thread
+from ..dynamics._parameters import check_coulomb_velocity
 from ._log import JointLog, LogError
 from ._prepare import is_uniform, prepare, resample
 
-__all__ = ["CutoffChoice", "choose_cutoff", "cutoff_grid"]
+__all__ = ["COULOMB_GRID", "CutoffChoice", "choose_cutoff", "cutoff_grid"]
+
+#: The Coulomb term's smoothing velocities `choose_cutoff` tries by default, rad/s (0: sign).
+COULOMB_GRID = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2)
 
 
 def cutoff_grid(low_hz: float = 2.0, high_hz: float = 30.0, n: int = 8) -> tuple[float, ...]:
@@ -61,6 +70,10 @@ class CutoffChoice:
         best_hz: the cut-off with the lowest score, Hz (``cutoff_hz`` is the largest within
             one standard error of it).
         how: one line for a report: how the cut-off was chosen, with the numbers.
+        coulomb_velocity: the chosen smoothing velocity of the Coulomb term, rad/s (0:
+            ``sign(qd)``), or None where none was chosen (no Coulomb term, empty grid).
+        coulomb_grid: the smoothing velocities tried, rad/s (empty where none was chosen).
+        coulomb_scores: held-out mean nMSE per smoothing velocity at the chosen cut-off.
     """
 
     cutoff_hz: float
@@ -70,6 +83,9 @@ class CutoffChoice:
     standard_errors: tuple[float, ...]
     best_hz: float
     how: str
+    coulomb_velocity: float | None = None
+    coulomb_grid: tuple[float, ...] = ()
+    coulomb_scores: tuple[float, ...] = ()
 
 
 def _fit(Y: torch.Tensor, tau: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
@@ -99,6 +115,7 @@ def choose_cutoff(
     reach_s: float | None = None,
     rate_hz: float | None = None,
     compiled: bool | None = None,
+    coulomb_grid: Sequence[float] | None = None,
 ) -> CutoffChoice:
     """The low-pass cut-off of `prepare` that predicts held-out torques best (module docstring).
 
@@ -114,6 +131,10 @@ def choose_cutoff(
         rate_hz: the rate the prepared data are decimated to for the fits (default: about
             four times the largest cut-off, so that decimation never aliases).
         compiled: the regressor's path (see `RigidBodyModel.regressor`).
+        coulomb_grid: smoothing velocities of the Coulomb term to choose from with the cut-off,
+            rad/s (`torchjfa.dynamics.RigidBodyModel.coulomb_velocity`; 0 is ``sign(qd)``);
+            default `COULOMB_GRID` where the model has a Coulomb term; ``()`` keeps the
+            model's own.
 
     Returns:
         `CutoffChoice`.
@@ -131,6 +152,11 @@ def choose_cutoff(
         raise ValueError(
             f"the log's joints {tuple(log.joint_names)} are not the model's "
             f"{tuple(model.joint_names)} in its order; use log.reorder(model.joint_names)"
+        )
+    if log.n_samples < 2 * (n_folds + 2):
+        raise LogError(
+            f"{log.source}: {log.n_samples} samples are too few to choose a cut-off by "
+            f"{n_folds} held-out blocks; give the cut-off (--cutoff HZ)"
         )
     uniform = log if is_uniform(log.t) else resample(log)
     rate = uniform.rate_hz
@@ -161,19 +187,26 @@ def choose_cutoff(
         )
     var = raw.var(0).clamp_min(1e-300)
     idx = torch.arange(n)
-    errors, rms = [], []
+    widths = _widths(model, coulomb_grid)
+    errors, rms, by_width = [], [], []
     for c in grid:
         d = prepare(uniform, cutoff_hz=c, decimate=k, **common)
-        Y = model.regressor(d.q, d.qd, d.qdd, compiled=compiled)
         w = 1.0 / d.tau.std(0).clamp_min(1e-12)
-        pred = torch.empty_like(raw)
-        for a, b in zip(bounds, bounds[1:], strict=False):
-            fit = (idx < a - gap) | (idx >= b + gap)
-            theta = _fit(Y[fit], d.tau[fit], w)
-            pred[a:b] = Y[a:b] @ theta
-        e2 = (pred - raw) ** 2
-        errors.append((e2 / var).mean(1))  # (n,) per-sample nMSE, mean over joints
-        rms.append(float(e2.mean(0).sqrt().mean()))
+        tried = []
+        for v in widths:
+            m = model if v is None else model.with_coulomb_velocity(v)
+            Y = m.regressor(d.q, d.qd, d.qdd, compiled=compiled)
+            pred = torch.empty_like(raw)
+            with single_thread():  # small solves: threads only wait on a busy machine
+                for a, b in zip(bounds, bounds[1:], strict=False):
+                    fit = (idx < a - gap) | (idx >= b + gap)
+                    pred[a:b] = Y[a:b] @ _fit(Y[fit], d.tau[fit], w)
+            e2 = (pred - raw) ** 2
+            tried.append(((e2 / var).mean(1), float(e2.mean(0).sqrt().mean())))  # per-sample nMSE
+        j = min(range(len(tried)), key=lambda i: float(tried[i][0].mean()))
+        errors.append(tried[j][0])
+        rms.append(tried[j][1])
+        by_width.append((j, tuple(float(e.mean()) for e, _ in tried)))
     E = torch.stack(errors)  # (n_grid, n)
     scores = E.mean(1)
     best = int(torch.argmin(scores))
@@ -196,6 +229,17 @@ def choose_cutoff(
             "error of it"
         )
     )
+    chosen_v, v_scores = None, ()
+    if widths != [None]:
+        j, v_scores = by_width[pick]
+        chosen_v = widths[j]
+        how += (
+            "; with it the Coulomb term's smoothing velocity tanh(qd / v_c), each cut-off "
+            "scored with its best v_c: "
+            + ", ".join(f"{v:g} rad/s {sc:.3g}" for v, sc in zip(widths, v_scores, strict=True))
+            + f"; v_c = {chosen_v:g} rad/s"
+            + (" (sign(qd))" if chosen_v == 0 else "")
+        )
     return CutoffChoice(
         cutoff_hz=grid[pick],
         grid_hz=tuple(grid),
@@ -204,4 +248,16 @@ def choose_cutoff(
         standard_errors=tuple(float(s) for s in se),
         best_hz=grid[best],
         how=how,
+        coulomb_velocity=chosen_v,
+        coulomb_grid=() if chosen_v is None else tuple(widths),
+        coulomb_scores=tuple(v_scores),
     )
+
+
+def _widths(model, coulomb_grid) -> list:
+    """The Coulomb smoothing velocities to try: ``[None]`` (the model's own) when the model has
+    no Coulomb term or ``coulomb_grid`` is empty, else the checked grid."""
+    if "coulomb" not in getattr(model, "friction", ()):
+        return [None]
+    grid = COULOMB_GRID if coulomb_grid is None else tuple(coulomb_grid)
+    return [check_coulomb_velocity(v) for v in grid] or [None]

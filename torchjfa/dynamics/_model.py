@@ -9,6 +9,7 @@ the `Moments` an estimator fits. `InverseDynamics` wraps a model and a theta as 
 from __future__ import annotations
 
 import contextlib
+import copy
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -24,7 +25,13 @@ from ..stats import Moments
 from ._inputs import check_chunk, check_out, check_state, new_output
 from ._kernel import RegressorKernel
 from ._mjcf import tree_from_mjcf
-from ._parameters import ParameterLayout, friction_kinds, inertial_from_vector, inertial_vector
+from ._parameters import (
+    ParameterLayout,
+    check_coulomb_velocity,
+    friction_kinds,
+    inertial_from_vector,
+    inertial_vector,
+)
 from ._rnea import TreeConstants, regressor_into
 from ._rnea_fast import regressor_fast
 from ._tree import KinematicTree, describe_source, read_description, tree_from_urdf
@@ -74,6 +81,12 @@ class RigidBodyModel:
         source_path: the description's absolute path, or None when built from a string.
         source_format: ``"urdf"`` or ``"mjcf"``.
         source_xml: the description's text.
+        coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (m/s for
+            prismatic joints): its regressor column is ``tanh(qd / v_c)``, or ``sign(qd)`` for
+            ``v_c = 0`` (the default). Real joints' dry friction changes sign over a band of
+            velocities (on the real Franka Panda log of docs/real-robot.md about 0.05 rad/s),
+            which ``sign`` draws as a jump; `with_coulomb_velocity` gives the same model with
+            another ``v_c``, `torchjfa.data.choose_cutoff` chooses it from a log.
     """
 
     def __init__(
@@ -85,8 +98,10 @@ class RigidBodyModel:
         source_xml: str,
         source_path: str | None,
         source_format: str,
+        coulomb_velocity: float = 0.0,
     ) -> None:
         self._tree = tree
+        self.coulomb_velocity = check_coulomb_velocity(coulomb_velocity)
         self.chain = chain
         self.layout = ParameterLayout(tree.joint_names, friction_kinds(friction))
         self.source_xml = source_xml
@@ -104,6 +119,7 @@ class RigidBodyModel:
         friction: str | Sequence[str] = ("viscous",),
         gravity: Sequence[float] = (0.0, 0.0, -9.81),
         fixed_joints: str | Sequence[str] = (),
+        coulomb_velocity: float = 0.0,
     ) -> RigidBodyModel:
         """Read a URDF file (or a string or bytes of URDF XML).
 
@@ -120,6 +136,7 @@ class RigidBodyModel:
             fixed_joints: joints held at q = 0 and treated as ``fixed`` (their links lumped into
                 the parent), e.g. a gripper's fingers to identify the arm alone; `source_xml`
                 is then the description with these joints turned fixed.
+            coulomb_velocity: the Coulomb column's smoothing velocity (see the class).
 
         Raises:
             FileNotFoundError: if the file does not exist.
@@ -132,7 +149,13 @@ class RigidBodyModel:
         text = fix_urdf_joints(text, fixed_joints, where)
         tree, chain = tree_from_urdf(text, gravity, where)
         return cls(
-            tree, chain, friction=friction, source_xml=text, source_path=path, source_format="urdf"
+            tree,
+            chain,
+            friction=friction,
+            source_xml=text,
+            source_path=path,
+            source_format="urdf",
+            coulomb_velocity=coulomb_velocity,
         )
 
     @classmethod
@@ -142,6 +165,7 @@ class RigidBodyModel:
         *,
         friction: str | Sequence[str] = ("viscous",),
         gravity: Sequence[float] | None = None,
+        coulomb_velocity: float = 0.0,
     ) -> RigidBodyModel:
         """Read an MJCF file (or a string or bytes of MJCF XML); MuJoCo compiles it.
 
@@ -150,6 +174,7 @@ class RigidBodyModel:
             friction: friction terms per joint, from ``("viscous", "coulomb", "offset")``.
             gravity: ``(3,)`` m/s^2; None takes the file's ``<option gravity>`` (MuJoCo's
                 default is ``(0, 0, -9.81)``).
+            coulomb_velocity: the Coulomb column's smoothing velocity (see the class).
 
         Raises:
             FileNotFoundError: if the file does not exist.
@@ -159,7 +184,13 @@ class RigidBodyModel:
         text, path = read_description(source, "MJCF")
         tree, chain, _ = tree_from_mjcf(text, path, gravity)
         return cls(
-            tree, chain, friction=friction, source_xml=text, source_path=path, source_format="mjcf"
+            tree,
+            chain,
+            friction=friction,
+            source_xml=text,
+            source_path=path,
+            source_format="mjcf",
+            coulomb_velocity=coulomb_velocity,
         )
 
     # ------------------------------------------------------------------ description
@@ -214,10 +245,24 @@ class RigidBodyModel:
 
     def __repr__(self) -> str:
         where = self.source_path or "<string>"
+        smooth = f", coulomb_velocity={self.coulomb_velocity:g}" if self.coulomb_velocity else ""
         return (
             f"RigidBodyModel({self.source_format}: {where}, n_dof={self.n_dof}, "
-            f"n_params={self.n_params}, friction={self.friction})"
+            f"n_params={self.n_params}, friction={self.friction}{smooth})"
         )
+
+    def with_coulomb_velocity(self, coulomb_velocity: float) -> RigidBodyModel:
+        """The same robot and parameter layout with the Coulomb column ``tanh(qd / v_c)``.
+
+        Args:
+            coulomb_velocity: ``v_c`` >= 0, rad/s (m/s prismatic); 0 gives ``sign(qd)``.
+
+        Returns:
+            A new `RigidBodyModel` sharing this one's description (and its compiled kernels).
+        """
+        other = copy.copy(self)
+        other.coulomb_velocity = check_coulomb_velocity(coulomb_velocity)
+        return other
 
     # ------------------------------------------------------------------ regressor
     def _consts(self, dtype: torch.dtype, device: torch.device) -> TreeConstants:
@@ -294,6 +339,7 @@ class RigidBodyModel:
         if grad:
             Y = q2.new_zeros(B, n, self.n_params)
             regressor_into(Y, q2, qd2, qdd2, c, self.friction)
+            self._smooth_coulomb(Y, qd2)
             return Y.reshape(shape)
         step = _DEFAULT_CHUNK if chunk_size is None else check_chunk(chunk_size)
         Y = new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
@@ -305,7 +351,19 @@ class RigidBodyModel:
         else:
             with single_thread() if q2.device.type == "cpu" else contextlib.nullcontext():
                 regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # every entry
+        self._smooth_coulomb(Y, qd2)
         return Y.reshape(shape) if out is None else out
+
+    def _smooth_coulomb(self, Y: torch.Tensor, qd: torch.Tensor) -> None:
+        """Overwrite the Coulomb columns of ``Y (B, n, n_params)`` (written as ``sign(qd)`` by
+        every path) with ``tanh(qd / v_c)`` when ``coulomb_velocity`` > 0."""
+        if not self.coulomb_velocity or "coulomb" not in self.friction:
+            return
+        per = self.n_params // self.n_dof
+        col = 10 + self.friction.index("coulomb")
+        Y.view(Y.shape[0], self.n_dof, self.n_dof, per).diagonal(0, 1, 2)[:, col] = torch.tanh(
+            qd / self.coulomb_velocity
+        )
 
     def _kernel(self, dtype: torch.dtype, *, required: bool = True) -> RegressorKernel | None:
         """The compiled kernel for ``dtype``; None when it cannot be built and not ``required``."""

@@ -7,19 +7,22 @@ moves, in Pinocchio's order, about the body frame's origin and expressed in the 
 
 then that joint's joint terms ("friction" in the code's names), in the order of `FRICTION_KINDS`
 that are selected: viscous friction ``fv qd`` (the default, the seed paper's 11th parameter),
-Coulomb friction ``fc sign(qd)``, a constant offset ``fo`` and the armature ``ia qdd`` (the
+Coulomb friction ``fc sign(qd)`` (``fc tanh(qd / v_c)`` with
+`RigidBodyModel.coulomb_velocity` ``v_c`` > 0), a constant offset ``fo`` and the armature ``ia qdd`` (the
 motor's reflected rotor inertia, MuJoCo's ``armature``). Units: kg, kg m, kg m^2, then N m s/rad,
 N m, N m and kg m^2 (N s/m, N, N and kg for prismatic joints).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 
 __all__ = [
+    "check_coulomb_velocity",
     "INERTIAL_NAMES",
     "FRICTION_KINDS",
     "ParameterLayout",
@@ -191,6 +194,19 @@ def pseudo_inertia(pi: torch.Tensor) -> torch.Tensor:
     top = torch.cat([sigma, h[..., :, None]], -1)
     bottom = torch.cat([h, pi[..., :1]], -1)[..., None, :]
     return torch.cat([top, bottom], -2)
+
+
+def check_coulomb_velocity(value) -> float:
+    """A Coulomb smoothing velocity as a float >= 0 (rad/s), or a ValueError naming it."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, bool) or not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(
+            f"coulomb_velocity must be a finite number >= 0 (rad/s; 0 for sign(qd)), got {value!r}"
+        )
+    return v
 
 
 def friction_kinds(friction: str | Sequence[str]) -> tuple[str, ...]:

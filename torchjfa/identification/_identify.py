@@ -148,6 +148,7 @@ def identify(
     raw = read(log, model, options)
     held = None if validation_log is None else read(validation_log, model, options)
     data = prepare_data(model, raw, options, held)
+    model = data.model_for(model)  # the Coulomb term as the preparation chose it
     noise = choose_noise(model, data, options)
     started = time.perf_counter()
     result = fit(model, data, noise, options)
@@ -158,6 +159,7 @@ def identify(
         "validation": data.split,
         "preparation": data.describe(),
         "cutoff": f"{data.cutoff_hz:g} Hz, {data.cutoff_how}",
+        "coulomb_velocity": data.coulomb_velocity,
         "prepare": dict(data.preparation),
         "data": dict(data.info),
         "identify_seconds": seconds,

@@ -78,6 +78,10 @@ class Options:
     Preparation (`torchjfa.data.prepare`):
         cutoff: the zero-phase low-pass cut-off, Hz, or ``"auto"``
             (`torchjfa.data.choose_cutoff` on the training part of the log).
+        coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (its column
+            ``tanh(qd / v_c)``; 0 is ``sign(qd)``), or ``"auto"``: chosen with the cut-off
+            from `torchjfa.data.COULOMB_GRID` by the same held-out prediction (at a given
+            cut-off, by that cut-off alone). Without a Coulomb term it does nothing.
         filter: ``"butterworth"`` (order 4) or ``"savgol"``.
         velocity: ``"auto"``, ``"measured"`` or ``"differentiate"``.
         period: the excitation period, s, ``"auto"`` (detect) or None (none).
@@ -117,6 +121,7 @@ class Options:
     drop_nan: bool = False
     max_seconds: float | None = None
     cutoff: float | str = "auto"
+    coulomb_velocity: float | str = "auto"
     filter: str = "butterworth"
     velocity: str = "auto"
     period: float | str | None = "auto"
@@ -149,6 +154,13 @@ class Options:
         if self.cutoff != "auto" and not 0 < _number(self.cutoff) < float("inf"):
             raise IdentificationError(
                 f"cutoff must be 'auto' or a positive Hz, got {self.cutoff!r}"
+            )
+        if self.coulomb_velocity != "auto" and not 0 <= _number(self.coulomb_velocity) < float(
+            "inf"
+        ):
+            raise IdentificationError(
+                "coulomb_velocity must be 'auto' or a number >= 0, rad/s, got "
+                f"{self.coulomb_velocity!r}"
             )
         if not 0.0 < _number(self.validation) < 1.0:
             raise IdentificationError(

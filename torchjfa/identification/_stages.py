@@ -172,6 +172,9 @@ class PreparedData:
         raw: the raw identification log ``train`` was prepared from (its first
             ``train.n_samples`` prepared samples are ``train``), or None; `choose_noise`
             propagates its sensor noise (`torchjfa.data.propagated_noise`).
+        coulomb_velocity: the Coulomb term's smoothing velocity the later stages fit with,
+            rad/s (`RigidBodyModel.coulomb_velocity`; chosen with the cut-off under
+            ``"auto"``); `model_for` applies it.
     """
 
     train: JointLog
@@ -183,6 +186,13 @@ class PreparedData:
     info: dict
     warnings: list[str] = field(default_factory=list)
     raw: JointLog | None = None
+    coulomb_velocity: float = 0.0
+
+    def model_for(self, model: RigidBodyModel) -> RigidBodyModel:
+        """``model`` with this preparation's Coulomb smoothing velocity (itself if it has it)."""
+        if model.coulomb_velocity == self.coulomb_velocity:
+            return model
+        return model.with_coulomb_velocity(self.coulomb_velocity)
 
     def describe(self) -> str:
         """One line on what the preparation did."""
@@ -213,7 +223,7 @@ def prepare_data(
     """
     options = Options() if options is None else options
     warnings = list(raw.warnings)
-    cutoff, how = _cutoff(model, raw.log, options, validation is None, warnings)
+    cutoff, how, v_c = _cutoff(model, raw.log, options, validation is None, warnings)
     prep = {
         "cutoff_hz": cutoff,
         "method": options.filter,
@@ -234,36 +244,72 @@ def prepare_data(
         split = f"last {options.validation:.0%} of the log, {gap} samples apart"
     enough(train.n_samples, model, "after filtering and the validation split, training has")
     return PreparedData(
-        train, valid, split, cutoff, how, prep, dict(data.info), warnings, raw=raw.log
+        train,
+        valid,
+        split,
+        cutoff,
+        how,
+        prep,
+        dict(data.info),
+        warnings,
+        raw=raw.log,
+        coulomb_velocity=v_c,
     )
 
 
 def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings: list):
-    """``(cutoff_hz, how)``: the given cut-off, or `choose_cutoff` on the training part."""
-    if options.cutoff != "auto":
-        return float(options.cutoff), "given (--cutoff)"
+    """``(cutoff_hz, how, coulomb_velocity)``: the given cut-off, or `choose_cutoff`'s on the
+    training part; the given Coulomb smoothing velocity, or the one chosen with the cut-off."""
+    given_v = options.coulomb_velocity != "auto" or "coulomb" not in model.friction
+    if given_v:
+        v_c = (
+            model.coulomb_velocity
+            if options.coulomb_velocity == "auto"
+            else options.coulomb_velocity
+        )
+        model = model.with_coulomb_velocity(v_c)
+    if options.cutoff != "auto" and given_v:
+        return float(options.cutoff), "given (--cutoff)", model.coulomb_velocity
+    given = options.cutoff != "auto"
     if held_in_log:
         # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
         # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
-        # 4 / 2 s at the grid's lowest cut-off
+        # 4 / f s at the grid's lowest cut-off f
         v = options.validation
-        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / cutoff_grid()[0]
+        low = float(options.cutoff) if given else cutoff_grid()[0]
+        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / low
         log = log.select(log.t < log.t[0] + end)
     try:
         choice = choose_cutoff(
             model,
             log,
+            grid_hz=(float(options.cutoff),) if given else None,
             method=options.filter,
             velocity=options.velocity,
             compiled=options.compute.compiled,
+            coulomb_grid=() if given_v else None,
         )
     except LogError as exc:
-        warnings.append(f"--cutoff auto: {exc}; {DEFAULT_CUTOFF_HZ:g} Hz used")
-        return (
-            DEFAULT_CUTOFF_HZ,
-            "the default: the log is too short to choose one (see the warnings)",
+        fallback = float(options.cutoff) if given else DEFAULT_CUTOFF_HZ
+        what = "the Coulomb smoothing velocity" if given else "--cutoff auto"
+        sign = (
+            "" if given_v else f", the Coulomb term's smoothing velocity {model.coulomb_velocity:g} rad/s"
         )
-    return choice.cutoff_hz, choice.how
+        warnings.append(f"{what}: {exc}; {fallback:g} Hz used{sign}")
+        how = "given (--cutoff)" if given else "the default: the log is too short to choose one"
+        return fallback, how + " (see the warnings)", model.coulomb_velocity
+    if choice.coulomb_velocity is None:
+        return choice.cutoff_hz, choice.how, model.coulomb_velocity
+    if given:
+        scores = zip(choice.coulomb_grid, choice.coulomb_scores, strict=True)
+        how = (
+            "given (--cutoff); the Coulomb term's smoothing velocity tanh(qd / v_c) chosen at it "
+            "by held-out torque prediction (as for --cutoff auto), mean nMSE "
+            + ", ".join(f"{v:g} rad/s {sc:.3g}" for v, sc in scores)
+            + f"; v_c = {choice.coulomb_velocity:g} rad/s"
+        )
+        return choice.cutoff_hz, how, choice.coulomb_velocity
+    return choice.cutoff_hz, choice.how, choice.coulomb_velocity
 
 
 # ------------------------------------------------------------------------------ noise
@@ -318,6 +364,7 @@ def choose_noise(model: RigidBodyModel, data: PreparedData, options: Options | N
             ``"propagated"`` without the raw log (``data.raw``).
     """
     options = Options() if options is None else options
+    model = data.model_for(model)
     train, warnings = data.train, []
     weights = None
     if options.weighting == "residual":
@@ -428,10 +475,11 @@ def make_estimator(options: Options, input_noise: torch.Tensor | None = None):
 def fit(
     model: RigidBodyModel, data: PreparedData, noise: NoiseChoice, options: Options | None = None
 ) -> IdentificationResult:
-    """Moments of the training data -> estimator -> projection (`torchjfa.pipeline.identify`)."""
+    """Moments of the training data -> estimator -> projection (`torchjfa.pipeline.identify`),
+    with the model's Coulomb term smoothed as the preparation chose (`PreparedData.model_for`)."""
     options = Options() if options is None else options
     return _identify(
-        model,
+        data.model_for(model),
         data.train,
         estimator=make_estimator(options, noise.input_noise),
         project=options.project,
