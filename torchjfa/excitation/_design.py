@@ -198,7 +198,9 @@ def optimize_excitation(
     problem = _Design(
         model, limits, basis, criterion, joint_weights, kin, period_grid(1.0 / f0, n_grid), q0, f0
     )
-    # the starts: D-optimal for "d+condition", soft condition at the first exponent for it
+    # "d+condition": D-optimal starts, the best one polished at every exponent; "condition":
+    # every start on soft_condition (its penalty rounds at the first exponent, then the others),
+    # so its start_values are the bound at the last exponent
     polish = condition_p if criterion == "d+condition" else ()
     per_start = condition_p[1:] if criterion == "condition" else ()
     problem.p = condition_p[0] if criterion == "condition" else None
