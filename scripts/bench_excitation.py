@@ -5,8 +5,9 @@
 
 For each robot and seed, two trajectories of the same duration inside the same limits:
 
-* optimised: `torchjfa.excitation.optimize_excitation` (D-optimal, Fourier series at rest at
-  the middle of the position limits),
+* optimised: `torchjfa.excitation.optimize_excitation` (its default criterion: D-optimal
+  starts, the best polished on the condition number; Fourier series at rest at the middle of
+  the position limits; ``--criterion`` for another),
 * random: `torchjfa.excitation.random_excitation` (the library's random sum of sinusoids,
   `torchjfa.sim.random_trajectory`, with the same base frequency and harmonics, scaled to the
   largest amplitude the same limits allow).
@@ -45,6 +46,7 @@ from torchjfa.data import differentiate
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS
 from torchjfa.excitation import (
+    CRITERIA,
     limits_from_model,
     optimize_excitation,
     random_excitation,
@@ -153,7 +155,7 @@ def run(
     base_frequency: float = 0.1,
     harmonics: int = 5,
     periods: int = 2,
-    criterion: str = "d",
+    criterion: str = "d+condition",
     smoke: bool = False,
     progress: bool = True,
 ) -> dict:
@@ -243,7 +245,7 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
     p.add_argument("--robots", default="head,arm,panda")
-    p.add_argument("--criterion", choices=("d", "condition", "e"), default="d")
+    p.add_argument("--criterion", choices=CRITERIA, default="d+condition")
     p.add_argument("--smoke", action="store_true", help="tiny sizes, one seed")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args(argv)

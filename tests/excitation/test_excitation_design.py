@@ -20,6 +20,7 @@ from torchjfa.excitation import (
     limits_from_model,
     optimize_excitation,
     random_excitation,
+    soft_condition,
     trajectory_information,
 )
 from torchjfa.sim import model_path
@@ -119,7 +120,7 @@ def test_broken_limit_raises_with_the_joint_and_the_kind():
         optimize_excitation(model, limits, **{**SMALL, "duration": 3.0})
 
 
-@pytest.mark.parametrize("kind", ["d", "condition", "e"])
+@pytest.mark.parametrize("kind", ["d", "condition", "e", "soft 2", "soft 32"])
 def test_criterion_gradient_matches_finite_differences(kind):
     model = RigidBodyModel.from_mjcf(model_path("head"))
     limits = limits_from_model(model)
@@ -133,15 +134,52 @@ def test_criterion_gradient_matches_finite_differences(kind):
     def f(a, b):
         a, b = constrain_coefficients(a, b)
         M = information_matrix(model, *fourier_states(t, q0, a, b, 0.25), basis)
+        if kind.startswith("soft"):
+            return soft_condition(M, float(kind.split()[1]))
         return criterion_value(M, kind)
 
     assert torch.autograd.gradcheck(f, (a, b), eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+def test_soft_condition_written_out_and_bounds_the_condition_number():
+    M = torch.diag(torch.tensor([4.0, 1.0, 0.25], dtype=torch.float64))
+    for p in (1.0, 2.0, 8.0):
+        ratio = (4**p + 1 + 0.25**p) ** (1 / p) * (4**-p + 1 + 0.25**-p) ** (1 / p)
+        assert float(soft_condition(M, p)) == pytest.approx(0.5 * np.log(ratio), abs=1e-14)
+    # log cond(Y V) <= soft <= log cond(Y V) + log(r) / p, for a random SPD matrix
+    g = torch.Generator().manual_seed(3)
+    A = torch.randn(6, 6, generator=g, dtype=torch.float64)
+    M = A @ A.T + 0.1 * torch.eye(6, dtype=torch.float64)
+    exact = float(criterion_value(M, "condition"))
+    for p in (2.0, 8.0, 64.0):
+        soft = float(soft_condition(M, p))
+        assert exact - 1e-12 <= soft <= exact + np.log(6) / p + 1e-12
+    assert soft_condition(torch.zeros(2, 2, dtype=torch.float64), 4.0) == float("inf")
+    with pytest.raises(ValueError, match="p must be positive"):
+        soft_condition(M, 0.0)
+
+
+def test_default_polish_lowers_the_condition_number_of_the_d_optimum():
+    model = _model("head")
+    limits = limits_from_model(model, velocity=1.0)
+    kw = {**SMALL, "max_iter": 20}
+    d = optimize_excitation(model, limits, rate=RATE, seed=0, criterion="d", **kw)
+    dc = optimize_excitation(model, limits, rate=RATE, seed=0, **kw)  # the default
+    assert dc.criterion == "d+condition"
+    assert dc.start_values == d.start_values  # the same D-optimal starts, then the polish
+    assert dc.condition_number < d.condition_number
+    assert min(check_limits(model, dc.trajectory, limits, rate=RATE).values()) >= 0.0
+    with pytest.raises(ValueError, match="needs at least one exponent"):
+        optimize_excitation(model, limits, condition_p=(), **SMALL)
+    with pytest.raises(ValueError, match="condition_p must be positive"):
+        optimize_excitation(model, limits, condition_p=(2.0, -1.0), **SMALL)
 
 
 def test_criteria_written_out():
     M = torch.diag(torch.tensor([4.0, 1.0, 0.25], dtype=torch.float64))
     assert float(criterion_value(M, "d")) == pytest.approx(-np.log(4 * 1 * 0.25) / 3, abs=1e-14)
     assert float(criterion_value(M, "condition")) == pytest.approx(np.log(4.0), abs=1e-14)
+    assert float(criterion_value(M, "d+condition")) == pytest.approx(np.log(4.0), abs=1e-14)
     assert float(criterion_value(M, "e")) == pytest.approx(-np.log(0.25), abs=1e-14)
     assert criterion_value(torch.zeros(2, 2, dtype=torch.float64)) == float("inf")
 

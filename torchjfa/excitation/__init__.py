@@ -20,6 +20,7 @@ from ._information import CRITERIA as CRITERIA
 from ._information import base_directions as base_directions
 from ._information import criterion_value as criterion_value
 from ._information import information_matrix as information_matrix
+from ._information import soft_condition as soft_condition
 from ._information import trajectory_information as trajectory_information
 from ._limits import Limits as Limits
 from ._limits import WorkspaceBox as WorkspaceBox

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .._cli_identify import friction_terms
+from ._information import CRITERIA
 
 __all__ = ["add_parser", "run", "simulation_reference"]
 
@@ -69,8 +70,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--base-freq", type=float, default=0.1, help="base frequency f0, Hz")
     p.add_argument("--harmonics", type=int, default=5, help="harmonics per joint (>= 2)")
     p.add_argument(
-        "--criterion", choices=("d", "condition", "e"), default="d",
-        help="D-optimality (-log det), log condition number or E-optimality (-log lambda_min)",
+        "--criterion", choices=CRITERIA, default="d+condition",
+        help="d+condition: D-optimal starts, the best polished on the condition number; d: "
+        "D-optimality (-log det); condition: log condition number; e: E-optimality "
+        "(-log lambda_min)",
     )  # fmt: skip
     p.add_argument(
         "--friction", type=friction_terms, default=("viscous",),
@@ -103,7 +106,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument("--starts", type=int, default=3, help="random starts")
     p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="optimiser")
-    p.add_argument("--max-iter", type=int, default=50, help="iterations per start")
+    p.add_argument(
+        "--max-iter", type=int, default=50,
+        help="iterations per start and per round of the condition number's exponent",
+    )  # fmt: skip
     p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")

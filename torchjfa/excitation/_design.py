@@ -11,17 +11,22 @@ regressor's row space, computed once from an SVD of the regressor at random stat
 (`base_directions`: the directions no motion can excite are dropped). The criteria (Swevers
 et al. 1997; Gautier and Khalil 1992):
 
-* ``"d"`` (default), D-optimality: ``-log det M / r``, the mean log-eigenvalue (invariant to
-  the choice of basis and of parameter units),
-* ``"condition"``: ``log cond(Y V) = log(lambda_max / lambda_min) / 2``,
+* ``"d"``, D-optimality: ``-log det M / r``, the mean log-eigenvalue (invariant to the choice
+  of basis and of parameter units),
+* ``"condition"``: ``log cond(Y V) = log(lambda_max / lambda_min) / 2``, the condition number
+  of the base regressor in the parameters' units (the one `trajectory_information` reports),
+* ``"d+condition"`` (default): D-optimal starts, then the best one polished on the condition
+  number (it keeps the D-optimum's low errors and lowers the condition number),
 * ``"e"``, E-optimality: ``-log lambda_min(M)``.
 
 `optimize_excitation` minimises the criterion over the coefficients of a `FourierTrajectory`
 on a coarse grid of one period with torch autograd (LBFGS or Adam, several random starts)
 while a quadratic penalty, raised over rounds, keeps the limits (`Limits`) with a small
-safety margin; the result is then checked on a grid 10x finer than the output rate and shrunk
-about the posture until it holds there (`check_limits`), or a ``ValueError`` says which limit
-cannot be met.
+safety margin. The condition number, a nonsmooth ratio of extreme eigenvalues (LBFGS stalls
+on it where they cluster), is optimised through its smooth bound `soft_condition` with the
+exponent p raised over rounds (``condition_p``). The result is then checked on a grid 10x
+finer than the output rate and shrunk about the posture until it holds there
+(`check_limits`), or a ``ValueError`` says which limit cannot be met.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ from ._information import (
     base_directions,
     criterion_value,
     period_grid,
+    soft_condition,
     trajectory_information,
     weighted_information,
 )
@@ -120,7 +126,7 @@ def optimize_excitation(
     base_frequency: float = 0.1,
     harmonics: int = 5,
     posture=None,
-    criterion: str = "d",
+    criterion: str = "d+condition",
     joint_weights=None,
     rate: float = 100.0,
     n_grid: int = 200,
@@ -128,6 +134,7 @@ def optimize_excitation(
     optimizer: str = "lbfgs",
     max_iter: int = 50,
     rounds: tuple[float, ...] = (1e3,),
+    condition_p: tuple[float, ...] = (2.0, 8.0, 32.0),
     seed: int | None = 0,
     generator: torch.Generator | None = None,
     progress: bool = False,
@@ -142,7 +149,8 @@ def optimize_excitation(
         harmonics: H >= 2 harmonics per joint (the highest frequency is ``H f0``).
         posture: ``(n_dof,)`` q0 the trajectory starts and ends at, at rest (default: the middle
             of the position limits).
-        criterion: ``"d"`` (default), ``"condition"`` or ``"e"`` (see the module).
+        criterion: ``"d+condition"`` (default), ``"d"``, ``"condition"`` or ``"e"`` (see the
+            module).
         joint_weights: ``(n_dof,)`` weights of each joint's torque equation (e.g. 1 / torque
             noise variance); default 1.
         rate: output rate, Hz: the limits are checked at ``10 * rate``.
@@ -151,6 +159,10 @@ def optimize_excitation(
         optimizer: ``"lbfgs"`` or ``"adam"``.
         max_iter: iterations per penalty round (LBFGS) or Adam steps per round.
         rounds: penalty weights, one optimisation round each.
+        condition_p: exponents of `soft_condition`, one round each (at the last penalty
+            weight, ``max_iter`` iterations): for ``"condition"`` after every start's penalty
+            rounds (run at the first exponent), for ``"d+condition"`` on the best D-optimal
+            start.
         seed: seeds the `torch.Generator` when ``generator`` is None.
         generator: the random starts' and base directions' generator.
         progress: show a progress bar.
@@ -173,6 +185,7 @@ def optimize_excitation(
         duration=duration,
         counts={"n_grid": n_grid, "n_starts": n_starts, "max_iter": max_iter},
     )
+    condition_p = _check_exponents(condition_p, criterion)
     n = model.n_dof
     q0 = _posture(limits, posture, n)
     g = generator if generator is not None else torch.Generator()
@@ -185,13 +198,19 @@ def optimize_excitation(
     problem = _Design(
         model, limits, basis, criterion, joint_weights, kin, period_grid(1.0 / f0, n_grid), q0, f0
     )
+    # "d+condition": D-optimal starts, the best one polished at every exponent; "condition":
+    # every start on soft_condition (its penalty rounds at the first exponent, then the others),
+    # so its start_values are the bound at the last exponent
+    polish = condition_p if criterion == "d+condition" else ()
+    per_start = condition_p[1:] if criterion == "condition" else ()
+    problem.p = condition_p[0] if criterion == "condition" else None
     kw = {"dtype": torch.float64}
     w = 2 * math.pi * f0 * torch.arange(1, harmonics + 1, **kw)
     room = torch.as_tensor(np.minimum(q0 - limits.position_low, limits.position_high - q0), **kw)
 
     best = None
     values = []
-    total = n_starts * len(rounds)
+    total = n_starts * (len(rounds) + len(per_start)) + len(polish)
     with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
         for _ in range(n_starts):
             # a random start inside the position limits: each joint uses ~half of its room
@@ -203,22 +222,28 @@ def optimize_excitation(
             a_raw = (a0 * scale).requires_grad_(True)
             b_raw = (b0 * scale).requires_grad_(True)
             crit = math.inf
-            for rho in rounds:
+            for rho, p in [(rho, problem.p) for rho in rounds] + [
+                (rounds[-1], p) for p in per_start
+            ]:
+                problem.p = p
                 crit = _optimise_round(problem, a_raw, b_raw, rho, optimizer, max_iter, room)
                 bar.update(1)
                 bar.set_postfix(criterion=f"{crit:.4g}")
-            with torch.no_grad():
-                a, b, (q, qd, qdd) = problem.states(a_raw, b_raw)
-                viol = constraint_violations(
-                    model, limits, q, qd, qdd, theta=problem.theta, kinematics=kin
-                )
-                worst = max(float(v.max()) for v in viol.values())
+            problem.p = condition_p[0] if criterion == "condition" else None
             values.append(crit)
             # prefer feasible starts on the coarse grid, then the criterion
-            key = (worst > 0, crit)
+            key = (_worst_violation(problem, a_raw, b_raw) > 0, crit)
             if best is None or key < best[0]:
-                best = (key, a.detach().clone(), b.detach().clone())
-    traj = FourierTrajectory(f0, q0, best[1].numpy(), best[2].numpy(), model.joint_names)
+                best = (key, a_raw.detach().clone(), b_raw.detach().clone())
+        a_raw, b_raw = best[1].requires_grad_(True), best[2].requires_grad_(True)
+        for p in polish:  # the best D-optimal start, on the condition number
+            problem.p = p
+            crit = _optimise_round(problem, a_raw, b_raw, rounds[-1], optimizer, max_iter, room)
+            bar.update(1)
+            bar.set_postfix(condition=f"{crit:.4g}")
+        with torch.no_grad():
+            a, b = constrain_coefficients(a_raw, b_raw)
+    traj = FourierTrajectory(f0, q0, a.numpy(), b.numpy(), model.joint_names)
     theta = problem.theta
     shrink = _largest_feasible_scale(model, traj.scaled, limits, rate, theta=theta)
     if shrink < 1.0:
@@ -275,6 +300,29 @@ def _check_design(
     return f0
 
 
+def _check_exponents(condition_p, criterion: str) -> tuple[float, ...]:
+    """``condition_p`` as a tuple of positive floats (at least one for the condition criteria)."""
+    try:
+        ps = tuple(float(p) for p in condition_p)
+    except (TypeError, ValueError):
+        raise ValueError(f"condition_p must be positive numbers, got {condition_p!r}") from None
+    if not all(p > 0 and math.isfinite(p) for p in ps):
+        raise ValueError(f"condition_p must be positive numbers, got {condition_p!r}")
+    if not ps and criterion in ("condition", "d+condition"):
+        raise ValueError(f"the {criterion!r} criterion needs at least one exponent in condition_p")
+    return ps
+
+
+def _worst_violation(problem, a_raw, b_raw) -> float:
+    """The largest limit violation (fraction of the limit) on the coarse grid."""
+    with torch.no_grad():
+        _, _, (q, qd, qdd) = problem.states(a_raw, b_raw)
+        viol = constraint_violations(
+            problem.model, problem.limits, q, qd, qdd, theta=problem.theta, kinematics=problem.kin
+        )
+    return max(float(v.max()) for v in viol.values())
+
+
 def _posture(limits: Limits, posture, n: int) -> np.ndarray:
     """``(n,)`` q0: ``posture``, or the middle of the position limits; strictly inside them."""
     lo, hi = limits.position_low, limits.position_high
@@ -294,7 +342,8 @@ class _Design:
 
     ``states`` maps raw Fourier coefficients ``(n, H)`` to the constrained ones and the joint
     states ``(n_grid, n)``; ``objective`` is the criterion plus ``rho`` times the limits'
-    penalty, and the criterion alone.
+    penalty, and the criterion alone. The criterion is `soft_condition` at exponent ``p`` when
+    ``p`` is set, else ``criterion`` (``"d"`` for ``"d+condition"``).
     """
 
     def __init__(self, model, limits, basis, criterion, joint_weights, kin, t, q0, f0) -> None:
@@ -303,6 +352,7 @@ class _Design:
         self.t, self.f0 = t, f0
         self.posture = torch.as_tensor(q0, dtype=torch.float64)
         self.theta = model.nominal_theta
+        self.p: float | None = None
 
     def states(self, a_raw, b_raw):
         a, b = constrain_coefficients(a_raw, b_raw)
@@ -311,9 +361,11 @@ class _Design:
     def objective(self, a_raw, b_raw, rho):
         _, _, (q, qd, qdd) = self.states(a_raw, b_raw)
         Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
-        crit = criterion_value(
-            weighted_information(Y, self.basis, self.joint_weights), self.criterion
-        )
+        M = weighted_information(Y, self.basis, self.joint_weights)
+        if self.p is not None:
+            crit = soft_condition(M, self.p)
+        else:
+            crit = criterion_value(M, "d" if self.criterion == "d+condition" else self.criterion)
         viol = constraint_violations(
             self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin
         )

@@ -23,10 +23,11 @@ __all__ = [
     "base_directions",
     "information_matrix",
     "criterion_value",
+    "soft_condition",
     "trajectory_information",
 ]
 
-CRITERIA = ("d", "condition", "e")
+CRITERIA = ("d+condition", "d", "condition", "e")
 
 
 def base_directions(
@@ -105,7 +106,8 @@ def criterion_value(M: torch.Tensor, kind: str = "d") -> torch.Tensor:
 
     Args:
         M: ``(r, r)`` symmetric positive definite information matrix.
-        kind: ``"d"``, ``"condition"`` or ``"e"``.
+        kind: ``"d"``, ``"condition"`` or ``"e"``; ``"d+condition"`` (D-optimal, then the
+            condition number: the design's default) is valued as ``"condition"``.
 
     Returns:
         A 0-d tensor; +inf when M is singular (a direction not excited).
@@ -117,9 +119,34 @@ def criterion_value(M: torch.Tensor, kind: str = "d") -> torch.Tensor:
         return ev.new_tensor(math.inf)
     if kind == "d":
         return -torch.log(ev).mean()
-    if kind == "condition":
+    if kind in ("condition", "d+condition"):
         return 0.5 * (torch.log(ev[-1]) - torch.log(ev[0]))
     return -torch.log(ev[0])
+
+
+def soft_condition(M: torch.Tensor, p: float) -> torch.Tensor:
+    """A smooth upper bound of ``log cond(Y V) = log(lambda_max / lambda_min) / 2``.
+
+    The ratio of the eigenvalues' p-norms, ``(sum_i l_i^p)^(1/p) (sum_i l_i^-p)^(1/p)``, in
+    logs and halved: ``(logsumexp(p log l) + logsumexp(-p log l)) / (2 p)``. It lies between
+    ``log cond(Y V)`` and ``log cond(Y V) + log(r) / p`` (r eigenvalues), so it tends to the
+    condition criterion as p grows, and, unlike it, is differentiable where the extreme
+    eigenvalues are repeated (the minimax's optimum: LBFGS on the plain ratio stalls there).
+
+    Args:
+        M: ``(r, r)`` symmetric positive definite information matrix.
+        p: the exponent, > 0 (raised over rounds by the design: 2, 8, 32).
+
+    Returns:
+        A 0-d tensor; +inf when M is singular.
+    """
+    if not p > 0:
+        raise ValueError(f"p must be positive, got {p}")
+    ev = torch.linalg.eigvalsh(0.5 * (M + M.T))
+    if not bool(ev[0] > 0):
+        return ev.new_tensor(math.inf)
+    log_ev = torch.log(ev)
+    return (torch.logsumexp(p * log_ev, 0) + torch.logsumexp(-p * log_ev, 0)) / (2 * p)
 
 
 def period_grid(period: float, n: int) -> torch.Tensor:
