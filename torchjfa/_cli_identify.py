@@ -65,45 +65,27 @@ def _period(text: str):
         ) from None
 
 
-def _coulomb_velocity(text: str):
-    if text == "auto":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto' or a smoothing velocity >= 0 in rad/s, got {text!r}"
-        )
-    return value
+def _auto_or(what: str, *, zero: bool):
+    """An argparse type: ``"auto"`` or a finite number > 0 (>= 0 with ``zero``); the error
+    says ``expected 'auto' or <what>``."""
+
+    def parse(text: str):
+        if text == "auto":
+            return text
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not ((value >= 0) if zero else (value > 0)) or value == float("inf"):
+            raise argparse.ArgumentTypeError(f"expected 'auto' or {what}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _cutoff(text: str):
-    if text == "auto":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto' or a positive cut-off in Hz, got {text!r}"
-        )
-    return value
-
-
-def _prior_weight(text: str):
-    """``--description-prior``: ``auto`` or a weight >= 0."""
-    if text == "auto":
-        return "auto"
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected 'auto' or a weight >= 0, got {text!r}")
-    return value
+_coulomb_velocity = _auto_or("a smoothing velocity >= 0 in rad/s", zero=True)
+_cutoff = _auto_or("a positive cut-off in Hz", zero=False)
+_prior_weight = _auto_or("a weight >= 0", zero=True)  # --description-prior
 
 
 def _skip(text: str):

@@ -293,7 +293,9 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
         fallback = float(options.cutoff) if given else DEFAULT_CUTOFF_HZ
         what = "the Coulomb smoothing velocity" if given else "--cutoff auto"
         sign = (
-            "" if given_v else f", the Coulomb term's smoothing velocity {model.coulomb_velocity:g} rad/s"
+            ""
+            if given_v
+            else f", the Coulomb term's smoothing velocity {model.coulomb_velocity:g} rad/s"
         )
         warnings.append(f"{what}: {exc}; {fallback:g} Hz used{sign}")
         how = "given (--cutoff)" if given else "the default: the log is too short to choose one"
