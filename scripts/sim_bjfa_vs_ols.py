@@ -168,8 +168,13 @@ def main(argv=None) -> dict:
     n_test = 4000
     if args.smoke:
         robots, args.seeds, args.samples, n_test = ("head",), 1, 1500, 500
-    rows = run(robots, tuple(range(args.seeds)), n_samples=args.samples, n_test=n_test,
-               period_s=args.period)
+    rows = run(
+        robots,
+        tuple(range(args.seeds)),
+        n_samples=args.samples,
+        n_test=n_test,
+        period_s=args.period,
+    )
     out = {}
     for robot, per_seed in rows.items():
         first = next(iter(per_seed.values()))
@@ -182,7 +187,9 @@ def main(argv=None) -> dict:
         for s, r in per_seed.items():
             print(
                 f"{s:>6} "
-                + " ".join(f"{r[n]['heldout_nmse']:>17.4g} {r[n]['param_error']:>16.4g}" for n in RUNS)
+                + " ".join(
+                    f"{r[n]['heldout_nmse']:>17.4g} {r[n]['param_error']:>16.4g}" for n in RUNS
+                )
             )
         v = verdicts(per_seed)
         print(

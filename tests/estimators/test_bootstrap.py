@@ -31,7 +31,9 @@ def test_ols_bootstrap_matches_the_least_squares_std():
     coef = torch.arange(1.0, 6.0, dtype=torch.float64)
     sigma2 = 0.7
     g = torch.Generator().manual_seed(1)
-    coefs, std = bootstrap(OLS(fit_intercept=False), redraw_moments(m, coef, sigma2, B, generator=g))
+    coefs, std = bootstrap(
+        OLS(fit_intercept=False), redraw_moments(m, coef, sigma2, B, generator=g)
+    )
     assert coefs.shape == (B, 5) and std.shape == (5,) and std.dtype == torch.float64
     exact = (sigma2 * torch.linalg.inv(X.T @ X).diagonal()).sqrt()
     _within_monte_carlo(std, exact)

@@ -17,6 +17,7 @@ from torchjfa.identification import (
     read,
     signal_bootstrap,
 )
+from torchjfa.physical import base_parameters
 from torchjfa.sim import generate_log
 
 OPTIONS = Options(cutoff=20.0, period=None, project=False, jackknife=0)
@@ -57,24 +58,20 @@ def test_signal_bootstrap_spread_is_zero_without_noise_and_scales_with_it(head):
     assert coefs.shape == (3, model.n_params) and std.shape == (model.n_params,)
     # no added noise: every refit is the estimate itself
     torch.testing.assert_close(coefs, est.expand(3, -1), rtol=1e-10, atol=1e-12)
-    # the same draws at twice the noise std: to first order twice the spread about the refits'
-    # mean (the refit is smooth in the noise), on the combinations the data determine. (Not
-    # about the estimate: the refits' mean moves from it by the extra errors-in-variables bias
-    # of the added noise, which grows with its variance.) At a tenth of the log's noise std the
-    # second-order part is a tenth of what it is at the log's own (where it is tens of per
-    # cent: the differentiated acceleration's noise is not small), so within 5 %.
+    # the same draws at twice the noise std: to first order twice the spread of the base
+    # parameters (the refit is smooth in the noise; the single parameters are not determined,
+    # and the min-norm solve moves them along rounding-level directions whatever the noise).
+    # At a tenth of the log's noise std the second-order part is a tenth of what it is at the
+    # log's own (tens of per cent: the differentiated acceleration's noise is not small), and
+    # 6 draws of 50 combinations give the median ratio to a few per cent: within 10 %.
+    base = base_parameters(fit(model, data, noise, OPTIONS).moments, model)
     small = _scaled(sig, 0.01)
-    one = signal_bootstrap(model, data, noise, OPTIONS, n_draws=6, seed=2, signal=small)[0]
-    two = signal_bootstrap(model, data, noise, OPTIONS, n_draws=6, seed=2, signal=_scaled(small, 4))[0]
-    L = torch.linalg.cholesky(data_xtx(model, data, noise))  # the fit's metric
-    ratio = ((two - two.mean(0)) @ L).norm() / ((one - one.mean(0)) @ L).norm()
-    assert 1.9 < float(ratio) < 2.1, ratio
+
+    def spread(signal):
+        coefs = signal_bootstrap(model, data, noise, OPTIONS, n_draws=6, seed=2, signal=signal)[0]
+        return base.values(coefs).std(dim=0)
+
+    ratio = (spread(_scaled(small, 4)) / spread(small)).median()
+    assert 1.8 < float(ratio) < 2.2, ratio
     with pytest.raises(IdentificationError, match="at least 2 draws"):
         signal_bootstrap(model, data, noise, OPTIONS, n_draws=1)
-
-
-def data_xtx(model, data, noise):
-    """X^T W X of the training rows plus a tiny ridge (the head has zero columns)."""
-    m = fit(model, data, noise, OPTIONS).moments
-    d = m.xtx.shape[0]
-    return m.xtx + 1e-9 * float(m.xtx.diagonal().max()) * torch.eye(d, dtype=torch.float64)
