@@ -24,7 +24,7 @@ mean over seeds:
   parameter's kind (`BaseParameters.scales`), the truth mapped the same way.
 
 The issue's claims: Bayesian JFA's held-out error below OLS's, and its parameter error at least
-20 % below OLS's.
+20 % below OLS's; judged on the geometric mean over seeds of the per-seed ratios to OLS.
 
     python scripts/sim_bjfa_vs_ols.py             # head and arm, seeds 0, 1, 2
     python scripts/sim_bjfa_vs_ols.py --smoke     # head, one seed, short logs (seconds)
@@ -33,6 +33,7 @@ The issue's claims: Bayesian JFA's held-out error below OLS's, and its parameter
 from __future__ import annotations
 
 import argparse
+import math
 import time
 import warnings
 
@@ -48,7 +49,7 @@ from torchjfa.sim import (
     load_robot,
     model_path,
     random_trajectory,
-    robot_effects,
+    true_parameters,
 )
 
 RUNS = {
@@ -61,10 +62,7 @@ RUNS = {
 def truth(robot: str) -> tuple[RigidBodyModel, torch.Tensor]:
     """The identification model (rigid body + viscous friction) and its true parameters."""
     model = RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous",))
-    theta = model.nominal_theta.clone()
-    fv = [model.layout.index(j, "fv") for j in range(model.n_dof)]
-    theta[fv] = torch.as_tensor(robot_effects(robot)["damping"], dtype=torch.float64)
-    return model, theta
+    return model, true_parameters(robot, model)
 
 
 def excitation(robot: str, seed: int, period_s: float):
@@ -135,7 +133,12 @@ def run(robots=("head", "arm"), seeds=(0, 1, 2), *, n_samples=8000, n_test=4000,
 
 
 def verdicts(per_seed: dict) -> dict:
-    """Means over seeds and the issue's two claims, per Bayesian run."""
+    """Means over seeds and the issue's two claims, per Bayesian run.
+
+    The claims are judged on the geometric mean over seeds of the per-seed ratios to OLS (each
+    seed weighs the same; an arithmetic mean of the errors is carried by the seed whose log
+    excites some combination least, where every estimator's error is largest).
+    """
     mean = {
         name: {
             k: sum(r[name][k] for r in per_seed.values()) / len(per_seed)
@@ -143,15 +146,20 @@ def verdicts(per_seed: dict) -> dict:
         }
         for name in RUNS
     }
-    ols = mean["OLS"]
     claims = {}
     for name in RUNS:
         if name == "OLS":
             continue
-        m = mean[name]
+        ratio = {
+            k: math.exp(
+                sum(math.log(r[name][k] / r["OLS"][k]) for r in per_seed.values()) / len(per_seed)
+            )
+            for k in ("heldout_nmse", "param_error")
+        }
         claims[name] = {
-            "lower_heldout": m["heldout_nmse"] < ols["heldout_nmse"],
-            "param_reduction": 1.0 - m["param_error"] / ols["param_error"],
+            "heldout_ratio": ratio["heldout_nmse"],
+            "lower_heldout": ratio["heldout_nmse"] < 1.0,
+            "param_reduction": 1.0 - ratio["param_error"],
         }
     return {"mean": mean, "claims": claims}
 
@@ -201,8 +209,9 @@ def main(argv=None) -> dict:
         )
         for n, c in v["claims"].items():
             print(
-                f"  {n}: held-out nMSE below OLS's: {'yes' if c['lower_heldout'] else 'NO'}; "
-                f"parameter error {c['param_reduction']:+.1%} lower than OLS's "
+                f"  {n} / OLS, geometric mean over seeds: held-out nMSE x"
+                f"{c['heldout_ratio']:.3f} (below OLS's: {'yes' if c['lower_heldout'] else 'NO'}); "
+                f"parameter error {c['param_reduction']:+.1%} lower "
                 f"(claim: at least 20 %): {'yes' if c['param_reduction'] >= 0.2 else 'NO'}"
             )
         out[robot] = {"per_seed": per_seed, **v}

@@ -40,7 +40,7 @@ import torch
 import torchjfa
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.identification import IdentificationWarning, Options, signal_bootstrap
-from torchjfa.sim import generate_log, model_path, robot_effects
+from torchjfa.sim import generate_log, model_path, true_parameters
 
 ESTIMATORS = {"OLS": "ols", "Bayesian JFA": "bayes-jfa"}
 SPREADS = ("own", "jackknife", "bootstrap")
@@ -52,10 +52,7 @@ LEVELS = (("68%", 1.0), ("95%", 1.96))
 def truth(robot: str) -> tuple[RigidBodyModel, torch.Tensor]:
     """The identification model (rigid body + viscous friction) and its true parameters."""
     model = RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous",))
-    theta = model.nominal_theta.clone()
-    fv = [model.layout.index(j, "fv") for j in range(model.n_dof)]
-    theta[fv] = torch.as_tensor(robot_effects(robot)["damping"], dtype=torch.float64)
-    return model, theta
+    return model, true_parameters(robot, model)
 
 
 def own_std(ident, base) -> torch.Tensor:
