@@ -321,9 +321,8 @@ _VALUE_COLUMNS = ("identified", "unconstrained", "jackknife_std")
 
 #: what the jackknife's coverage is in simulation (scripts/spread_coverage.py, 2026-12-02)
 SPREAD_NOTE = (
-    "in simulation +-1 and +-1.96 of a 20-block jackknife cover the truth 55 % and 79 % of "
-    "the time, not 68 % and 95 %, and fewer blocks cover less: it misses the noisy "
-    "regressor's bias (docs/report.md)"
+    "in simulation +-1 and +-1.96 of a 20-block jackknife cover the truth 55-62 % and 79-87 % "
+    "of the time, not 68 % and 95 %, and fewer blocks cover less (docs/report.md)"
 )
 
 
