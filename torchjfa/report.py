@@ -4,8 +4,9 @@
 before putting the identified model in a controller:
 
 * per parameter: the consistent (projected) value, the estimator's unconstrained value, its
-  spread (the delete-one-block jackknife, and Bayesian JFA's posterior standard deviation),
-  Bayesian JFA's relevance, and the description's (CAD) value;
+  spread (the delete-one-block jackknife; Bayesian JFA's posterior standard deviation and
+  relevance only in the rows and ``report.json``, not in the markdown table: in simulation
+  neither measures the error, docs/report.md), and the description's (CAD) value;
 * the physical-consistency check (`torchjfa.physical.check`) of both estimates;
 * held-out torque nMSE and RMS error per joint for the identified model, the unconstrained
   estimate and the description's parameters;

@@ -6,7 +6,14 @@ import pytest
 import torch
 
 from torchjfa.dynamics import RigidBodyModel
-from torchjfa.sim import EFFECTS, UNMODELED, load_robot, model_path, robot_effects
+from torchjfa.sim import (
+    EFFECTS,
+    UNMODELED,
+    load_robot,
+    model_path,
+    robot_effects,
+    true_parameters,
+)
 
 ROBOTS = {"head": 7, "arm": 10}
 
@@ -148,3 +155,17 @@ def test_regressor_matches_mj_inverse_and_effects_by_hand(robot):
             "frictionloss": true["frictionloss"] * np.sign(qd),
         }[effect]
         assert np.allclose(_mj_inverse(one, q, qd, qdd) - tau_fv, part, atol=1e-9 * scale.max())
+
+
+@pytest.mark.parametrize("robot", list(ROBOTS))
+def test_true_parameters_reproduce_mujocos_torque_without_the_unmodeled_effects(robot):
+    model = RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous", "coulomb"))
+    theta = true_parameters(robot, model)
+    q, qd, qdd = _states(load_robot(robot), 20, seed=4)
+    Y = model.regressor(torch.as_tensor(q), torch.as_tensor(qd), torch.as_tensor(qdd)).numpy()
+    mj = _mj_inverse(load_robot(robot, unmodeled=False), q, qd, qdd)
+    assert np.abs(Y @ theta.numpy() - mj).max() < 1e-9 * np.abs(mj).max()
+    fc = [model.layout.index(j, "fc") for j in range(model.n_dof)]
+    assert bool((theta[fc] == 0).all())  # a joint term the robot does not have is 0
+    with pytest.raises(ValueError, match="no viscous"):
+        true_parameters(robot, RigidBodyModel.from_mjcf(model_path(robot), friction=()))

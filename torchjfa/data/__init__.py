@@ -40,6 +40,7 @@ from ._prepare import resample as resample
 from ._prepare import transient_periods as transient_periods
 from ._propagate import PropagatedNoise as PropagatedNoise
 from ._propagate import propagated_noise as propagated_noise
+from ._propagate import redrawn_logs as redrawn_logs
 from ._schema import KINDS as KINDS
 from ._schema import TIME_COLUMN as TIME_COLUMN
 from ._schema import LogError as LogError

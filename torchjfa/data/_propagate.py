@@ -32,7 +32,7 @@ from ._prepare import prepare
 from ._schema import LogError
 from ._spectrum import SignalNoise, signal_noise
 
-__all__ = ["PropagatedNoise", "propagated_noise"]
+__all__ = ["PropagatedNoise", "propagated_noise", "redrawn_logs"]
 
 
 @dataclass(frozen=True)
@@ -137,15 +137,8 @@ def propagated_noise(
         return tuple(v[:rows, perm].to(torch.float64) for v in (log.q, log.qd, log.qdd, log.tau))
 
     q0, qd0, qdd0, tau0 = state(base)
-    noisy = []  # the draws' prepared states: n_draws x 4 x (rows, n_dof)
-    for _ in range(n_draws):
-        log = prepare(_perturbed(raw_log, noise, g), **fixed)
-        if log.n_samples != base.n_samples:
-            raise LogError(
-                f"{raw_log.source}: the noisy log prepared to {log.n_samples} samples, the "
-                f"log itself to {base.n_samples}; the preparation depends on the noise"
-            )
-        noisy.append(state(log))
+    # the draws' prepared states: n_draws x 4 x (rows, n_dof)
+    noisy = [state(log) for log in _redrawn(raw_log, fixed, noise, n_draws, g, base.n_samples)]
     tau_var = torch.stack([(x[3] - tau0).pow(2).mean(dim=0) for x in noisy]).mean(dim=0)
     draws = torch.zeros(n_draws, model.n_params, dtype=torch.float64)
     power = torch.zeros(model.n_params, dtype=torch.float64)
@@ -173,6 +166,61 @@ def propagated_noise(
         n_draws=n_draws,
         n_rows=n_rows,
     )
+
+
+def redrawn_logs(
+    raw_log: JointLog,
+    preparation: dict | None = None,
+    *,
+    noise: SignalNoise | None = None,
+    n_draws: int = 20,
+    seed: int = 0,
+) -> list[JointLog]:
+    """``n_draws`` copies of the raw log, each with a fresh draw of white sensor noise of the
+    estimated variances added to its q, qd and tau, prepared as the log itself is.
+
+    The preparation (`torchjfa.data.prepare` with ``preparation``) holds what it chose from
+    the data (a detected period, the start-up transient) at the noiseless log's choice, so every
+    draw has the log's prepared rows. The added noise rides on the log's own: to first order in
+    the noise, the difference between a draw's prepared signals and the log's is a second draw
+    of the log's noise through the preparation (the parametric bootstrap of
+    `torchjfa.identification.signal_bootstrap`, the Monte Carlo of `propagated_noise`).
+
+    Args:
+        raw_log: the log as recorded (before `prepare`).
+        preparation: the keywords of `prepare` (default its defaults).
+        noise: the raw signals' white noise (default `signal_noise` of ``raw_log``).
+        n_draws: how many copies, at least 1.
+        seed: seeds the draws.
+
+    Returns:
+        ``n_draws`` prepared `JointLog` s, each with the samples of ``prepare(raw_log,
+        **preparation)``.
+
+    Raises:
+        ValueError: on ``n_draws < 1``.
+        LogError: from `prepare` or `signal_noise`, or when a draw prepares to other rows.
+    """
+    if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 1:
+        raise ValueError(f"n_draws must be a positive int, got {n_draws!r}")
+    preparation = dict(preparation or {})
+    base = prepare(raw_log, **preparation)
+    noise = signal_noise(raw_log) if noise is None else noise
+    g = torch.Generator().manual_seed(int(seed))
+    fixed = _fixed(preparation, base.info)
+    return list(_redrawn(raw_log, fixed, noise, n_draws, g, base.n_samples))
+
+
+def _redrawn(raw_log: JointLog, fixed: dict, noise: SignalNoise, n_draws: int, g, n_samples: int):
+    """The noisy copies of `redrawn_logs`, prepared with the fixed keywords ``fixed``."""
+    for _ in range(n_draws):
+        log = prepare(_perturbed(raw_log, noise, g), **fixed)
+        if log.n_samples != n_samples:
+            raise LogError(
+                f"{raw_log.source}: the noisy log prepared to {log.n_samples} samples, the "
+                f"log itself to {n_samples}; the preparation depends on the noise"
+            )
+        yield log
 
 
 def _fixed(preparation: dict, info: dict) -> dict:

@@ -12,6 +12,8 @@ protocol it follows (``fit_moments``, ``coef_``, ``needs_folds``, ``cv``) is
 """
 
 from ._base import LinearEstimator as LinearEstimator
+from ._bootstrap import bootstrap as bootstrap
+from ._bootstrap import redraw_moments as redraw_moments
 from ._jackknife import jackknife as jackknife
 from ._jfa import JFA as JFA
 from ._jfa import BayesianJFA as BayesianJFA

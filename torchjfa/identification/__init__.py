@@ -11,8 +11,11 @@ each taking the previous one's output:
 5. `fit`: moments, estimator, projection (`torchjfa.pipeline.identify`;
    `torchjfa.pipeline.IdentificationResult`);
 6. `validate`: the report on the held-out data (`torchjfa.report.IdentificationReport`).
+
+`signal_bootstrap` refits on re-drawn sensor noise for the spread of the unconstrained estimate.
 """
 
+from ._bootstrap import signal_bootstrap as signal_bootstrap
 from ._identify import Identification as Identification
 from ._identify import identify as identify
 from ._options import JOINT_TERMS as JOINT_TERMS

@@ -24,5 +24,6 @@ from ._robots import UNMODELED as UNMODELED
 from ._robots import load_robot as load_robot
 from ._robots import model_path as model_path
 from ._robots import robot_effects as robot_effects
+from ._robots import true_parameters as true_parameters
 from ._trajectory import SinusoidTrajectory as SinusoidTrajectory
 from ._trajectory import random_trajectory as random_trajectory

@@ -50,8 +50,17 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
-__all__ = ["ROBOTS", "EFFECTS", "UNMODELED", "model_path", "load_robot", "robot_effects"]
+__all__ = [
+    "ROBOTS",
+    "EFFECTS",
+    "UNMODELED",
+    "model_path",
+    "load_robot",
+    "robot_effects",
+    "true_parameters",
+]
 
 ROBOTS = {"head": "sarcos_head.xml", "arm": "sarcos_arm.xml"}
 EFFECTS = ("damping", "armature", "frictionloss", "stiffness")
@@ -175,3 +184,31 @@ def check_hinge_robot(model: mujoco.MjModel) -> None:
         raise ValueError("the simulation needs one motor per joint, in joint order")
     if np.any(model.actuator_gear[:, 0] != 1.0) or np.any(model.actuator_ctrllimited):
         raise ValueError("the motors must have gear 1 and no ctrlrange (ctrl = joint torque)")
+
+
+def true_parameters(robot: str, model) -> torch.Tensor:
+    """The true parameters of a shipped robot with ``unmodeled=False`` (rigid body and viscous
+    damping: what `generate_log(..., unmodeled=False)` simulates), in ``model``'s layout.
+
+    Args:
+        robot: ``"head"`` or ``"arm"``.
+        model: a `torchjfa.dynamics.RigidBodyModel` of that robot's file (e.g.
+            ``RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous",))``): its
+            ``nominal_theta`` holds the file's inertials; the damping goes to its ``fv`` terms.
+
+    Returns:
+        ``(n_params,)`` float64: the file's inertials, the damping as viscous friction and 0
+        for any other joint term.
+
+    Raises:
+        ValueError: when ``model`` has other joints than the robot or no viscous friction term.
+    """
+    if "viscous" not in tuple(model.friction):
+        raise ValueError("the model has no viscous friction term for the robot's damping")
+    names = joint_names(load_robot(robot, unmodeled=False))
+    if sorted(names) != sorted(model.joint_names):
+        raise ValueError(f"the model's joints {model.joint_names} are not {robot}'s {names}")
+    theta = model.nominal_theta.clone()
+    for name, damping in zip(names, robot_effects(robot)["damping"], strict=True):
+        theta[model.layout.index(name, "fv")] = float(damping)
+    return theta
