@@ -21,6 +21,7 @@ from pathlib import Path
 
 from torchjfa.experiments import robots as exp
 from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
+from torchjfa.identification import joint_terms
 
 NUMBERS = {"head": "I", "arm": "II"}  # the paper's table numbers
 
@@ -34,6 +35,7 @@ def run(
     seed: int = 0,
     out: Path = Path("results/robots"),
     weighting: str = "none",
+    friction: tuple[str, ...] = ("viscous",),
     progress: bool = True,
 ) -> dict:
     """Run the experiment, print the tables and the goal check, write CSV / JSON / PNG."""
@@ -46,6 +48,7 @@ def run(
         seed=seed,
         progress=progress,
         weighting=weighting,
+        friction=friction,
     )
     wall = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
@@ -132,6 +135,13 @@ if __name__ == "__main__":
         default="none",
         help="weight each joint's equations by its inverse OLS residual variance",
     )
+    parser.add_argument(
+        "--friction",
+        type=joint_terms,
+        default=("viscous",),
+        help="the identification model's joint terms, comma separated (the paper's: viscous; "
+        "viscous,armature models the simulated robots' armature)",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/robots"))
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args()
@@ -146,6 +156,7 @@ if __name__ == "__main__":
             seed=seed,
             out=folder,
             weighting=args.weighting,
+            friction=args.friction,
             progress=not args.quiet,
         ),
         args.out,

@@ -169,3 +169,18 @@ def test_true_parameters_reproduce_mujocos_torque_without_the_unmodeled_effects(
     assert bool((theta[fc] == 0).all())  # a joint term the robot does not have is 0
     with pytest.raises(ValueError, match="no viscous"):
         true_parameters(robot, RigidBodyModel.from_mjcf(model_path(robot), friction=()))
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_true_parameters_with_the_armature_reproduce_mujoco_with_its_armature_on(robot):
+    model = RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous", "armature"))
+    theta = true_parameters(robot, model, armature=True)
+    ia = [model.layout.index(j, "ia") for j in range(model.n_dof)]
+    assert bool((theta[ia] > 0).all())  # the shipped robots have armature on every joint
+    q, qd, qdd = _states(load_robot(robot), 20, seed=5)
+    Y = model.regressor(torch.as_tensor(q), torch.as_tensor(qd), torch.as_tensor(qdd)).numpy()
+    mj = _mj_inverse(load_robot(robot, unmodeled={"armature": True}), q, qd, qdd)
+    assert np.abs(Y @ theta.numpy() - mj).max() < 1e-9 * np.abs(mj).max()
+    # without armature=True the term is 0, and MuJoCo's torque differs by armature * qdd
+    plain = true_parameters(robot, model)
+    assert bool((plain[ia] == 0).all())

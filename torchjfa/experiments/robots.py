@@ -54,7 +54,7 @@ from ..sim import (
     model_path,
     random_trajectory,
     regressor_noise,
-    robot_effects,
+    true_parameters,
 )
 from ..stats import Moments
 from ._results import (
@@ -92,13 +92,10 @@ _SIGNALS = {
 
 
 def true_theta(model: RigidBodyModel, robot: str) -> torch.Tensor:
-    """The simulated robot's true parameters: the MJCF inertials and its viscous damping as fv."""
-    theta = model.nominal_theta.clone()
-    damping = torch.as_tensor(robot_effects(robot)["damping"], dtype=theta.dtype)
-    names = list(load_robot(robot).joint(i).name for i in range(model.n_dof))
-    for j, name in enumerate(model.joint_names):
-        theta[model.layout.index(j, "fv")] = damping[names.index(name)]
-    return theta
+    """The simulated robot's true parameters: the MJCF inertials, its viscous damping as fv and,
+    where the model has the term, its armature as ia (`torchjfa.sim.true_parameters`); dry
+    friction and cable stiffness stay unmodeled."""
+    return true_parameters(robot, model, armature=True)
 
 
 def block_moments(
@@ -283,6 +280,7 @@ def run_robot(
     seed: int = 0,
     options: Mapping | None = None,
     weighting: str = "none",
+    friction: Sequence[str] = ("viscous",),
     progress: bool = False,
 ) -> RobotResult:
     """The whole experiment for one robot (see the module docstring).
@@ -306,6 +304,9 @@ def run_robot(
             ``"residual"``: each joint's equations weighted by its inverse residual variance
             after a first OLS fit (`torchjfa.pipeline.residual_joint_weights`); the input noise
             is then that of the weighted rows.
+        friction: the identification model's joint terms (the paper's: viscous only);
+            ``("viscous", "armature")`` models the simulated robots' armature, which the
+            reference row then holds at its true value.
         progress: show progress bars.
 
     Returns:
@@ -333,7 +334,7 @@ def run_robot(
     n_test = int(round(test_duration * DEFAULT_RATES[robot]))
     test = generate_log(robot, n_samples=n_test, trajectory=test_traj, seed=seed + 1000, **kw)
     lap("simulate")
-    model = RigidBodyModel.from_mjcf(model_path(robot))
+    model = RigidBodyModel.from_mjcf(model_path(robot), friction=tuple(friction))
     log, test = log.reorder(model.joint_names), test.reorder(model.joint_names)
     sig = [getattr(log, k) for k in _SIGNALS[signals]]
     folds, weights = _training_moments(model, sig, weighting, n_blocks, progress)
@@ -384,6 +385,7 @@ def run_robot(
         "base_frequency": base_frequency, "test_duration": test_duration, "seed": seed,
         "noise_periods": period_noise.n_periods, "n_blocks": n_blocks, "weighting": weighting,
         "joint_weights": None if weights is None else weights.tolist(),
+        "friction": list(model.friction),
     }  # fmt: skip
     return RobotResult(robot, rows, found, ctrl, period_noise, settings, timings)
 

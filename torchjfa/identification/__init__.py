@@ -23,6 +23,7 @@ from ._options import Compute as Compute
 from ._options import IdentificationError as IdentificationError
 from ._options import IdentificationWarning as IdentificationWarning
 from ._options import Options as Options
+from ._options import joint_terms as joint_terms
 from ._stages import NoiseChoice as NoiseChoice
 from ._stages import PreparedData as PreparedData
 from ._stages import RawLog as RawLog

@@ -186,7 +186,7 @@ def check_hinge_robot(model: mujoco.MjModel) -> None:
         raise ValueError("the motors must have gear 1 and no ctrlrange (ctrl = joint torque)")
 
 
-def true_parameters(robot: str, model) -> torch.Tensor:
+def true_parameters(robot: str, model, *, armature: bool = False) -> torch.Tensor:
     """The true parameters of a shipped robot with ``unmodeled=False`` (rigid body and viscous
     damping: what `generate_log(..., unmodeled=False)` simulates), in ``model``'s layout.
 
@@ -195,10 +195,13 @@ def true_parameters(robot: str, model) -> torch.Tensor:
         model: a `torchjfa.dynamics.RigidBodyModel` of that robot's file (e.g.
             ``RigidBodyModel.from_mjcf(model_path(robot), friction=("viscous",))``): its
             ``nominal_theta`` holds the file's inertials; the damping goes to its ``fv`` terms.
+        armature: also the file's armature in the model's ``ia`` terms (where it has them):
+            the truth of a robot simulated with its armature on (MuJoCo adds ``armature qdd``
+            to each joint's torque exactly as the ``ia`` term does).
 
     Returns:
-        ``(n_params,)`` float64: the file's inertials, the damping as viscous friction and 0
-        for any other joint term.
+        ``(n_params,)`` float64: the file's inertials, the damping as viscous friction (and the
+        armature), 0 for any other joint term.
 
     Raises:
         ValueError: when ``model`` has other joints than the robot or no viscous friction term.
@@ -209,6 +212,11 @@ def true_parameters(robot: str, model) -> torch.Tensor:
     if sorted(names) != sorted(model.joint_names):
         raise ValueError(f"the model's joints {model.joint_names} are not {robot}'s {names}")
     theta = model.nominal_theta.clone()
-    for name, damping in zip(names, robot_effects(robot)["damping"], strict=True):
-        theta[model.layout.index(name, "fv")] = float(damping)
+    effects = robot_effects(robot)
+    terms = {"fv": effects["damping"]}
+    if armature and "armature" in tuple(model.friction):
+        terms["ia"] = effects["armature"]
+    for short, values in terms.items():
+        for name, value in zip(names, values, strict=True):
+            theta[model.layout.index(name, short)] = float(value)
     return theta
