@@ -75,3 +75,18 @@ def test_signal_bootstrap_spread_is_zero_without_noise_and_scales_with_it(head):
     assert 1.8 < float(ratio) < 2.2, ratio
     with pytest.raises(IdentificationError, match="at least 2 draws"):
         signal_bootstrap(model, data, noise, OPTIONS, n_draws=1)
+
+
+def test_signal_bootstrap_refits_with_the_coulomb_term_the_preparation_chose():
+    # the loaded model has sign(qd); the preparation's smoothing velocity is what `fit` used,
+    # so without added noise every refit is `fit`'s estimate only if the refits use it too
+    options = replace(OPTIONS, coulomb_velocity=0.05)
+    model = load_model("head", ("viscous", "coulomb"))
+    log = generate_log("head", n_samples=1200, seed=4)
+    data = prepare_data(model, read(log, model, options), options)
+    assert data.coulomb_velocity == 0.05 and model.coulomb_velocity == 0.0
+    noise = choose_noise(model, data, options)
+    est = fit(model, data, noise, options).theta_hat
+    zero = _scaled(signal_noise(data.raw), 0.0)
+    coefs, _ = signal_bootstrap(model, data, noise, options, n_draws=2, signal=zero)
+    torch.testing.assert_close(coefs, est.expand(2, -1), rtol=1e-10, atol=1e-12)

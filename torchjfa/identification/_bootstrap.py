@@ -57,6 +57,7 @@ def signal_bootstrap(
         raise IdentificationError("the bootstrap needs the raw log (PreparedData.raw)")
     if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
         raise IdentificationError(f"the bootstrap needs at least 2 draws, got {n_draws!r}")
+    model = data.model_for(model)  # the Coulomb term as the preparation chose it, as in `fit`
     estimator = make_estimator(options, noise.input_noise)
     n_train = data.train.n_samples
     folds = max(int(options.jackknife), 2) if estimator.needs_folds else None
