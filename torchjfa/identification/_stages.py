@@ -261,13 +261,8 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
     """``(cutoff_hz, how, coulomb_velocity)``: the given cut-off, or `choose_cutoff`'s on the
     training part; the given Coulomb smoothing velocity, or the one chosen with the cut-off."""
     given_v = options.coulomb_velocity != "auto" or "coulomb" not in model.friction
-    if given_v:
-        v_c = (
-            model.coulomb_velocity
-            if options.coulomb_velocity == "auto"
-            else options.coulomb_velocity
-        )
-        model = model.with_coulomb_velocity(v_c)
+    if options.coulomb_velocity != "auto":
+        model = model.with_coulomb_velocity(options.coulomb_velocity)
     if options.cutoff != "auto" and given_v:
         return float(options.cutoff), "given (--cutoff)", model.coulomb_velocity
     given = options.cutoff != "auto"
