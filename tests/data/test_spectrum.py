@@ -104,20 +104,20 @@ PREP = {"cutoff_hz": 20.0, "method": "butterworth", "period_s": 4.0, "skip_start
 
 @pytest.fixture(scope="module")
 def head_logs():
-    """The head on one trajectory twice with independent sensor noise (the controller sees the
-    true state, so the motion is the same), and its model."""
+    """The head on one trajectory twice with independent sensor noise and once without (the
+    controller sees the true state, so the motion is the same), and its model."""
     n = 420 * 4 * PERIODS
     one = generate_log("head", n_samples=n, noise=SensorNoise(), seed=1)
     two = generate_log("head", n_samples=n, noise=SensorNoise(), seed=2, trajectory=one.trajectory)
+    zero = generate_log("head", n_samples=n, noise=SensorNoise.zero(), trajectory=one.trajectory)
     assert torch.equal(one.q_true, two.q_true) and not torch.equal(one.q, two.q)
-    return load_model("head"), one, two
+    assert torch.equal(one.q_true, zero.q)
+    return load_model("head"), one, two, zero
 
 
-def _raw(log, true=False):
-    """The log as a raw recording (q, qd, tau), or its noiseless signals."""
-    names = ("q_true", "qd_true", "tau_true") if true else ("q", "qd", "tau")
-    q, qd, tau = (getattr(log, k) for k in names)
-    return JointLog(t=log.t, q=q, qd=qd, tau=tau, joint_names=log.joint_names)
+def _raw(log):
+    """The log as a raw recording (q, qd, tau)."""
+    return JointLog(t=log.t, q=log.q, qd=log.qd, tau=log.tau, joint_names=log.joint_names)
 
 
 def test_propagated_noise_matches_the_periods_and_the_truth(head_logs):
@@ -134,7 +134,7 @@ def test_propagated_noise_matches_the_periods_and_the_truth(head_logs):
     Coulomb columns (sign of qd) are left out: a discontinuous column's spread between two
     noisy draws and between a noisy and the noiseless one differ (no first-order equivalence).
     """
-    model, one, two = head_logs
+    model, one, two, noiseless = head_logs
     prop = propagated_noise(model, _raw(one), PREP, n_draws=8, seed=0)
     known = SensorNoise()
     r = max(
@@ -149,7 +149,7 @@ def test_propagated_noise_matches_the_periods_and_the_truth(head_logs):
 
     p1, Y1 = Y(_raw(one))
     _, Y2 = Y(_raw(two))
-    _, Y0 = Y(_raw(one, true=True))
+    _, Y0 = Y(_raw(noiseless))
     truth = 0.5 * ((Y1 - Y0).pow(2) + (Y2 - Y0).pow(2)).mean(dim=(0, 1))
     periods = regressor_noise(model, p1)
     K, P = periods.n_periods, periods.period_samples  # the filter's edges cost one period
@@ -170,14 +170,14 @@ def test_propagated_noise_matches_the_periods_and_the_truth(head_logs):
         assert bool((dev <= tol).all()), (dev / tol).max()
     # the torque: the prepared noise's variance against the noiseless log's, to 5 % (about
     # 8000 x 7 samples of a 20 Hz band: thousands of independent ones)
-    tau0 = prepare(_raw(one, true=True), **PREP).tau
+    tau0 = prepare(_raw(noiseless), **PREP).tau
     torch.testing.assert_close(
         prop.output_noise, (p1.tau - tau0).pow(2).mean(), rtol=0.05 + r, atol=0
     )
 
 
 def test_propagated_noise_weights_seed_rows_and_fixed_choices(head_logs):
-    model, one, _ = head_logs
+    model, one, *_ = head_logs
     raw = _raw(one).select(slice(0, 420 * 4 * 3))
     a = propagated_noise(model, raw, PREP, n_draws=2, seed=3)
     b = propagated_noise(model, raw, PREP, n_draws=2, seed=3, noise=a.signal_noise)

@@ -111,7 +111,9 @@ def test_noiseless_rigid_body_data_are_identified_exactly(tmp_path, monkeypatch)
         trajectory=random_trajectory(mj, base_frequency=0.5, seed=77),
     )
     perm = [held_out.joint_names.index(j) for j in model.joint_names]
-    q, qd, qdd, tau = (getattr(held_out, k)[:, perm] for k in ("q", "qd", "qdd_true", "tau"))
+    q, qd, qdd, tau = (
+        getattr(held_out, k)[:, perm] for k in ("q_true", "qd_true", "qdd_true", "tau_true")
+    )
     Y = model.regressor(q, qd, qdd)
     for method in ("ridge", "bjfa-noise"):
         theta_hat = res.identified[method].theta_hat

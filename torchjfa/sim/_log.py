@@ -20,7 +20,8 @@ key                         shape, dtype         meaning
                                                  rad/s^2, N m
 ``q_true qd_true``          (n, n_dof), float64  noiseless state
 ``qdd_true``                (n, n_dof), float64  the simulator's acceleration (``qacc``)
-``tau_true``                (n, n_dof), float64  the torque the motors applied
+``tau_true``                (n, n_dof), float64  the torque commanded at each sample (held
+                                                 over the next step)
 ``period_samples``          (), int64            samples per excitation period (-1: None)
 ``control_rate``            (), float64          sampling (= control) rate, Hz
 ``seed``                    (), int64            seed, -1 when None
@@ -139,10 +140,12 @@ class SimulatedLog(JointLog):
         qd: ``(n, n_dof)`` velocities, rad/s: measured, or differentiated from q.
         qdd: ``(n, n_dof)`` accelerations from numerical differentiation, rad/s^2 (they
             differ from qdd_true by the sample-and-hold ripple, see `generate_log`).
-        tau: ``(n, n_dof)`` measured applied torques (true + noise), N m.
+        tau: ``(n, n_dof)`` measured torques, N m: the applied torque averaged over the
+            sampling interval centred on each sample, plus noise (`generate_log`).
         q_true, qd_true: ``(n, n_dof)`` the noiseless state.
         qdd_true: ``(n, n_dof)`` the simulator's acceleration at each sample (``data.qacc``).
-        tau_true: ``(n, n_dof)`` the torques the motors applied.
+        tau_true: ``(n, n_dof)`` the torque commanded at each sample and held over the next
+            step, exact with ``q_true``, ``qd_true`` and ``qdd_true``.
         period_samples: samples per excitation period (None after a `select` that is not a
             contiguous slice).
         control_rate: sampling and control rate, Hz.
