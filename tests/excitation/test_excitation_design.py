@@ -163,7 +163,7 @@ def test_soft_condition_written_out_and_bounds_the_condition_number():
 def test_default_polish_lowers_the_condition_number_of_the_d_optimum():
     model = _model("head")
     limits = limits_from_model(model, velocity=1.0)
-    kw = {**SMALL, "max_iter": 20}
+    kw = {**SMALL, "max_iter": 20, "polish_iter": 20}
     d = optimize_excitation(model, limits, rate=RATE, seed=0, criterion="d", **kw)
     dc = optimize_excitation(model, limits, rate=RATE, seed=0, **kw)  # the default
     assert dc.criterion == "d+condition"
@@ -191,10 +191,9 @@ def test_polish_never_raises_the_exact_condition_number_of_its_start():
             rate=RATE,
             seed=0,
             condition_p=(2.0, math.inf),
-            polish_iter=p,
             polish_starts=n,
-            **kw,
-        )  # fmt: skip
+            **{**kw, "polish_iter": p},
+        )
         for n, p in ((1, 1), (2, 1), (1, 20))
     }
     assert d.shrink == 1.0 and all(r.shrink == 1.0 for r in res.values())  # coarse = reported
