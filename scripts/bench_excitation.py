@@ -168,7 +168,7 @@ def run(
     opt_kw = {}
     if smoke:
         duration, base_frequency, harmonics = 4.0, 0.25, 3
-        opt_kw = {"n_grid": 60, "n_starts": 1, "max_iter": 8}
+        opt_kw = {"n_grid": 60, "n_starts": 1, "max_iter": 8, "polish_iter": 8}
     results = {}
     for name in robots:
         model, theta, limits, rate = _robot(name)

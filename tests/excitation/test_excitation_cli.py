@@ -10,7 +10,7 @@ from torchjfa.data import read_log
 from torchjfa.excitation import FourierTrajectory
 
 SMOKE = ["--duration", "2", "--base-freq", "0.5", "--harmonics", "3", "--starts", "1",
-         "--max-iter", "5", "--grid", "40", "--quiet"]  # fmt: skip
+         "--max-iter", "5", "--polish-iter", "5", "--grid", "40", "--quiet"]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,6 @@
 """Optimised excitations hold their limits on a 10x finer grid; broken limits raise; gradients."""
 
+import math
 import sysconfig
 from pathlib import Path
 
@@ -28,7 +29,7 @@ from torchjfa.sim import model_path
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
 XARM7 = ERD / "xarm_description/urdf/xarm7.urdf"
 SMALL = {"duration": 4.0, "base_frequency": 0.25, "harmonics": 3, "n_grid": 60, "n_starts": 1,
-         "max_iter": 8}  # fmt: skip
+         "max_iter": 8, "polish_iter": 8}  # fmt: skip
 RATE = 50.0
 
 
@@ -162,7 +163,7 @@ def test_soft_condition_written_out_and_bounds_the_condition_number():
 def test_default_polish_lowers_the_condition_number_of_the_d_optimum():
     model = _model("head")
     limits = limits_from_model(model, velocity=1.0)
-    kw = {**SMALL, "max_iter": 20}
+    kw = {**SMALL, "max_iter": 20, "polish_iter": 20}
     d = optimize_excitation(model, limits, rate=RATE, seed=0, criterion="d", **kw)
     dc = optimize_excitation(model, limits, rate=RATE, seed=0, **kw)  # the default
     assert dc.criterion == "d+condition"
@@ -173,6 +174,39 @@ def test_default_polish_lowers_the_condition_number_of_the_d_optimum():
         optimize_excitation(model, limits, condition_p=(), **SMALL)
     with pytest.raises(ValueError, match="condition_p must be positive"):
         optimize_excitation(model, limits, condition_p=(2.0, -1.0), **SMALL)
+
+
+def test_polish_never_raises_the_exact_condition_number_of_its_start():
+    # one iteration at p = 2 is a poor polish: the kept trajectory must still be no worse, in
+    # the exact condition number on the coarse grid, than the best D-optimal start; a second
+    # polished start only adds candidates, so it is no worse than the first alone
+    model = _model("head")
+    limits = limits_from_model(model, velocity=1.0)
+    kw = {**SMALL, "max_iter": 20, "n_starts": 2}
+    d = optimize_excitation(model, limits, rate=RATE, seed=0, criterion="d", **kw)
+    res = {
+        (n, p): optimize_excitation(
+            model,
+            limits,
+            rate=RATE,
+            seed=0,
+            condition_p=(2.0, math.inf),
+            polish_starts=n,
+            **{**kw, "polish_iter": p},
+        )
+        for n, p in ((1, 1), (2, 1), (1, 20))
+    }
+    assert d.shrink == 1.0 and all(r.shrink == 1.0 for r in res.values())  # coarse = reported
+    for r in res.values():
+        assert r.condition_number <= d.condition_number * (1 + 1e-12)
+    assert res[2, 1].condition_number <= res[1, 1].condition_number * (1 + 1e-12)
+    assert res[1, 1].start_values == d.start_values
+    for bad in ({"polish_iter": 0}, {"polish_starts": 0}, {"polish_iter": 2.5}):
+        name = next(iter(bad))
+        with pytest.raises(ValueError, match=f"{name} must be a positive int"):
+            optimize_excitation(model, limits, **{**SMALL, **bad})
+    with pytest.raises(ValueError, match="condition_p must be positive"):
+        optimize_excitation(model, limits, condition_p=(math.nan,), **SMALL)
 
 
 def test_criteria_written_out():

@@ -108,7 +108,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="optimiser")
     p.add_argument(
         "--max-iter", type=int, default=50,
-        help="iterations per start and per round of the condition number's exponent",
+        help="iterations per start (and per exponent for --criterion condition)",
+    )  # fmt: skip
+    p.add_argument(
+        "--polish-iter", type=int, default=200,
+        help="d+condition: iterations per exponent of the condition number's polish",
     )  # fmt: skip
     p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
@@ -197,6 +201,7 @@ def _design(args, model, limits, rate: float, posture):
         n_starts=args.starts,
         optimizer=args.optimizer,
         max_iter=args.max_iter,
+        polish_iter=args.polish_iter,
         seed=args.seed,
         progress=not args.quiet,
     )

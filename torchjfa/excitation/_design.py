@@ -16,7 +16,9 @@ et al. 1997; Gautier and Khalil 1992):
 * ``"condition"``: ``log cond(Y V) = log(lambda_max / lambda_min) / 2``, the condition number
   of the base regressor in the parameters' units (the one `trajectory_information` reports),
 * ``"d+condition"`` (default): D-optimal starts, then the best one polished on the condition
-  number (it keeps the D-optimum's low errors and lowers the condition number),
+  number (it keeps the D-optimum's low errors and lowers the condition number; the polish
+  runs longer than the starts, ``polish_iter``, and never returns a trajectory of higher
+  exact condition number than the start it polished),
 * ``"e"``, E-optimality: ``-log lambda_min(M)``.
 
 `optimize_excitation` minimises the criterion over the coefficients of a `FourierTrajectory`
@@ -24,7 +26,7 @@ on a coarse grid of one period with torch autograd (LBFGS or Adam, several rando
 while a quadratic penalty, raised over rounds, keeps the limits (`Limits`) with a small
 safety margin. The condition number, a nonsmooth ratio of extreme eigenvalues (LBFGS stalls
 on it where they cluster), is optimised through its smooth bound `soft_condition` with the
-exponent p raised over rounds (``condition_p``). The result is then checked on a grid 10x
+exponent p raised over rounds (``condition_p``; ``inf`` is the exact log condition number). The result is then checked on a grid 10x
 finer than the output rate and shrunk about the posture until it holds there
 (`check_limits`), or a ``ValueError`` says which limit cannot be met.
 """
@@ -134,7 +136,9 @@ def optimize_excitation(
     optimizer: str = "lbfgs",
     max_iter: int = 50,
     rounds: tuple[float, ...] = (1e3,),
-    condition_p: tuple[float, ...] = (2.0, 8.0, 32.0),
+    condition_p: tuple[float, ...] = (2.0, 8.0, 32.0, 128.0),
+    polish_iter: int = 200,
+    polish_starts: int = 1,
     seed: int | None = 0,
     generator: torch.Generator | None = None,
     progress: bool = False,
@@ -160,9 +164,15 @@ def optimize_excitation(
         max_iter: iterations per penalty round (LBFGS) or Adam steps per round.
         rounds: penalty weights, one optimisation round each.
         condition_p: exponents of `soft_condition`, one round each (at the last penalty
-            weight, ``max_iter`` iterations): for ``"condition"`` after every start's penalty
-            rounds (run at the first exponent), for ``"d+condition"`` on the best D-optimal
-            start.
+            weight): for ``"condition"`` after every start's penalty rounds (run at the first
+            exponent; ``max_iter`` iterations), for ``"d+condition"`` on the best D-optimal
+            starts (``polish_iter`` iterations); ``math.inf`` is the exact log condition
+            number.
+        polish_iter: LBFGS iterations (or Adam steps) per exponent of the ``"d+condition"``
+            polish.
+        polish_starts: how many of the best D-optimal starts ``"d+condition"`` polishes; the
+            trajectory kept is the one (polished or not) of lowest exact condition number on
+            the coarse grid among those that hold the limits there.
         seed: seeds the `torch.Generator` when ``generator`` is None.
         generator: the random starts' and base directions' generator.
         progress: show a progress bar.
@@ -183,7 +193,13 @@ def optimize_excitation(
         harmonics=harmonics,
         base_frequency=base_frequency,
         duration=duration,
-        counts={"n_grid": n_grid, "n_starts": n_starts, "max_iter": max_iter},
+        counts={
+            "n_grid": n_grid,
+            "n_starts": n_starts,
+            "max_iter": max_iter,
+            "polish_iter": polish_iter,
+            "polish_starts": polish_starts,
+        },  # fmt: skip
     )
     condition_p = _check_exponents(condition_p, criterion)
     n = model.n_dof
@@ -208,9 +224,10 @@ def optimize_excitation(
     w = 2 * math.pi * f0 * torch.arange(1, harmonics + 1, **kw)
     room = torch.as_tensor(np.minimum(q0 - limits.position_low, limits.position_high - q0), **kw)
 
-    best = None
+    starts = []  # (key, a_raw, b_raw) per start
     values = []
-    total = n_starts * (len(rounds) + len(per_start)) + len(polish)
+    n_polish = min(polish_starts, n_starts) if polish else 0
+    total = n_starts * (len(rounds) + len(per_start)) + n_polish * len(polish)
     with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
         for _ in range(n_starts):
             # a random start inside the position limits: each joint uses ~half of its room
@@ -233,14 +250,31 @@ def optimize_excitation(
             values.append(crit)
             # prefer feasible starts on the coarse grid, then the criterion
             key = (_worst_violation(problem, a_raw, b_raw) > 0, crit)
-            if best is None or key < best[0]:
+            starts.append((key, a_raw.detach().clone(), b_raw.detach().clone()))
+        starts.sort(key=lambda s: s[0])
+        best = starts[0]
+        # "d+condition": the best n_polish D-optimal starts, each polished at every exponent;
+        # kept: the feasible one (coarse grid) of lowest exact condition number, the unpolished
+        # starts included, so the polish never returns a worse condition number than its start
+        if n_polish:
+            best = min(
+                ((_condition_key(problem, a, b), a, b) for _, a, b in starts[:n_polish]),
+                key=lambda s: s[0],
+            )
+        for _, a_start, b_start in starts[:n_polish]:
+            a_raw = a_start.clone().requires_grad_(True)
+            b_raw = b_start.clone().requires_grad_(True)
+            for p in polish:
+                problem.p = p
+                crit = _optimise_round(
+                    problem, a_raw, b_raw, rounds[-1], optimizer, polish_iter, room
+                )
+                bar.update(1)
+                bar.set_postfix(condition=f"{crit:.4g}")
+            key = _condition_key(problem, a_raw, b_raw)
+            if key < best[0]:
                 best = (key, a_raw.detach().clone(), b_raw.detach().clone())
-        a_raw, b_raw = best[1].requires_grad_(True), best[2].requires_grad_(True)
-        for p in polish:  # the best D-optimal start, on the condition number
-            problem.p = p
-            crit = _optimise_round(problem, a_raw, b_raw, rounds[-1], optimizer, max_iter, room)
-            bar.update(1)
-            bar.set_postfix(condition=f"{crit:.4g}")
+        a_raw, b_raw = best[1], best[2]
         with torch.no_grad():
             a, b = constrain_coefficients(a_raw, b_raw)
     traj = FourierTrajectory(f0, q0, a.numpy(), b.numpy(), model.joint_names)
@@ -306,11 +340,22 @@ def _check_exponents(condition_p, criterion: str) -> tuple[float, ...]:
         ps = tuple(float(p) for p in condition_p)
     except (TypeError, ValueError):
         raise ValueError(f"condition_p must be positive numbers, got {condition_p!r}") from None
-    if not all(p > 0 and math.isfinite(p) for p in ps):
+    if not all(p > 0 and not math.isnan(p) for p in ps):
         raise ValueError(f"condition_p must be positive numbers, got {condition_p!r}")
     if not ps and criterion in ("condition", "d+condition"):
         raise ValueError(f"the {criterion!r} criterion needs at least one exponent in condition_p")
     return ps
+
+
+def _condition_key(problem, a_raw, b_raw) -> tuple[bool, float]:
+    """(a limit is violated on the coarse grid, the exact log condition number there)."""
+    with torch.no_grad():
+        _, _, (q, qd, qdd) = problem.states(a_raw, b_raw)
+        M = weighted_information(
+            problem.model.regressor(q, qd, qdd), problem.basis, problem.joint_weights
+        )
+        cond = float(criterion_value(M, "condition"))
+    return (_worst_violation(problem, a_raw, b_raw) > 0, cond)
 
 
 def _worst_violation(problem, a_raw, b_raw) -> float:
@@ -362,7 +407,9 @@ class _Design:
         _, _, (q, qd, qdd) = self.states(a_raw, b_raw)
         Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
         M = weighted_information(Y, self.basis, self.joint_weights)
-        if self.p is not None:
+        if self.p is not None and math.isinf(self.p):
+            crit = criterion_value(M, "condition")
+        elif self.p is not None:
             crit = soft_condition(M, self.p)
         else:
             crit = criterion_value(M, "d" if self.criterion == "d+condition" else self.criterion)

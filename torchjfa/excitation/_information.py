@@ -135,7 +135,7 @@ def soft_condition(M: torch.Tensor, p: float) -> torch.Tensor:
 
     Args:
         M: ``(r, r)`` symmetric positive definite information matrix.
-        p: the exponent, > 0 (raised over rounds by the design: 2, 8, 32).
+        p: the exponent, > 0 (raised over rounds by the design: 2, 8, 32, 128).
 
     Returns:
         A 0-d tensor; +inf when M is singular.
