@@ -350,21 +350,17 @@ def _check_exponents(condition_p, criterion: str) -> tuple[float, ...]:
 def _condition_key(problem, a_raw, b_raw) -> tuple[bool, float]:
     """(a limit is violated on the coarse grid, the exact log condition number there)."""
     with torch.no_grad():
-        _, _, (q, qd, qdd) = problem.states(a_raw, b_raw)
-        M = weighted_information(
-            problem.model.regressor(q, qd, qdd), problem.basis, problem.joint_weights
-        )
-        cond = float(criterion_value(M, "condition"))
-    return (_worst_violation(problem, a_raw, b_raw) > 0, cond)
+        M, viol = problem.evaluate(a_raw, b_raw)
+        return (_worst(viol) > 0, float(criterion_value(M, "condition")))
 
 
 def _worst_violation(problem, a_raw, b_raw) -> float:
     """The largest limit violation (fraction of the limit) on the coarse grid."""
     with torch.no_grad():
-        _, _, (q, qd, qdd) = problem.states(a_raw, b_raw)
-        viol = constraint_violations(
-            problem.model, problem.limits, q, qd, qdd, theta=problem.theta, kinematics=problem.kin
-        )
+        return _worst(problem.evaluate(a_raw, b_raw)[1])
+
+
+def _worst(viol: dict[str, torch.Tensor]) -> float:
     return max(float(v.max()) for v in viol.values())
 
 
@@ -403,19 +399,25 @@ class _Design:
         a, b = constrain_coefficients(a_raw, b_raw)
         return a, b, fourier_states(self.t, self.posture, a, b, self.f0)
 
-    def objective(self, a_raw, b_raw, rho):
+    def evaluate(self, a_raw, b_raw):
+        """``(M, violations)``: the weighted information matrix and the limits' violations
+        (`constraint_violations`) on the grid, from one pass of the regressor."""
         _, _, (q, qd, qdd) = self.states(a_raw, b_raw)
         Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
         M = weighted_information(Y, self.basis, self.joint_weights)
+        viol = constraint_violations(
+            self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin
+        )
+        return M, viol
+
+    def objective(self, a_raw, b_raw, rho):
+        M, viol = self.evaluate(a_raw, b_raw)
         if self.p is not None and math.isinf(self.p):
             crit = criterion_value(M, "condition")
         elif self.p is not None:
             crit = soft_condition(M, self.p)
         else:
             crit = criterion_value(M, "d" if self.criterion == "d+condition" else self.criterion)
-        viol = constraint_violations(
-            self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin
-        )
         return crit + rho * _penalty(viol), crit
 
 

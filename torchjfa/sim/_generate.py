@@ -166,8 +166,8 @@ def _simulate(
     QD = np.empty((n_rec, n_dof))
     QDD = np.empty((n_rec, n_dof))
     TAU = np.empty((n_rec, n_dof))
-    SENSED = np.empty((n_rec, n_dof))
-    prev = np.zeros(n_dof)  # the command held over the step before the current one
+    before = np.zeros(n_dof)  # the command over the step before the first recorded one (none
+    # before the first step: MjData starts with ctrl = 0)
     data = mujoco.MjData(model)
     data.qpos[:] = law.q0
     data.qvel[:] = law.qd0
@@ -202,9 +202,9 @@ def _simulate(
             if r >= 0:  # the acceleration the command gives at the state (RK4's step
                 QDD[r] = qacc  # leaves another stage's qacc behind)
                 TAU[r] = ctrl
-                np.add(prev, ctrl, out=SENSED[r])
+            elif r == -1:
+                before[:] = ctrl
             step(model, data)
-            prev[:] = ctrl
             if more:
                 step(model, data, more)
             if (k + 1) % block == 0:
@@ -215,8 +215,8 @@ def _simulate(
     for arr, what in ((Q, "q"), (QD, "qd"), (QDD, "qdd"), (TAU, "tau")):
         if not np.isfinite(arr).all():
             raise RuntimeError(f"the simulation of {name} diverged ({what} is not finite)")
-    SENSED *= 0.5
-    return Q, QD, QDD, TAU, SENSED
+    sensed = 0.5 * (np.vstack((before, TAU[:-1])) + TAU)
+    return Q, QD, QDD, TAU, sensed
 
 
 def _derivatives(t, q_meas, qd_meas, velocity_source: str, **kw) -> tuple[np.ndarray, np.ndarray]:
