@@ -12,9 +12,11 @@ import torchjfa
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.excitation import (
     WorkspaceBox,
+    _design,
     base_directions,
     check_limits,
     constrain_coefficients,
+    constraint_violations,
     criterion_value,
     fourier_states,
     information_matrix,
@@ -24,6 +26,7 @@ from torchjfa.excitation import (
     soft_condition,
     trajectory_information,
 )
+from torchjfa.excitation._information import period_grid
 from torchjfa.sim import model_path
 
 ERD = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
@@ -207,6 +210,40 @@ def test_polish_never_raises_the_exact_condition_number_of_its_start():
             optimize_excitation(model, limits, **{**SMALL, **bad})
     with pytest.raises(ValueError, match="condition_p must be positive"):
         optimize_excitation(model, limits, condition_p=(math.nan,), **SMALL)
+
+
+def test_candidates_are_scaled_exactly_into_the_joint_limits_on_the_dense_grid():
+    # the closed-form scale about the posture puts the binding joint limit exactly _EDGE inside
+    # on the dense grid (checked by constraint_violations, the penalty's code), and the design
+    # penalises the joint limits there, torques and workspace on the coarse grid
+    model = _model("head")
+    limits = limits_from_model(model, velocity=1.0, acceleration=3.0)
+    q0 = 0.5 * (limits.position_low + limits.position_high)
+    problem = _design._Design(model, limits, None, "d", None, None, period_grid(4.0, 60), q0, 0.25)
+    assert problem.t_dense.numel() == 600
+    g = torch.Generator().manual_seed(3)
+    a, b = (torch.randn(7, 3, generator=g, dtype=torch.float64) for _ in range(2))
+    for size in (3.0, 1e-3):  # beyond the limits: scaled to them; well inside: left as it is
+        a_raw, b_raw = size * a, size * b
+        s = problem.joint_scale(a_raw, b_raw)
+        problem.scale_into_joint_limits(a_raw, b_raw)
+        dense = fourier_states(
+            problem.t_dense, problem.posture, *constrain_coefficients(a_raw, b_raw), 0.25
+        )
+        viol = constraint_violations(model, limits, *dense, kinds=_design.JOINT_KINDS)
+        worst = max(float(v.max()) for v in viol.values())
+        if size > 1:
+            assert 0.0 < s < 1.0
+            assert worst == pytest.approx(-_design._EDGE, abs=1e-12)
+        else:
+            assert s == 1.0 and worst < -0.4  # the posture: 0.5 of the range from both ends
+    assert set(viol) == {"position", "velocity", "acceleration"}
+    with pytest.raises(ValueError, match="unknown kinds of limit"):
+        constraint_violations(model, limits, *dense, kinds=("speed",))
+    # the optimiser's result needs no shrink for joint limits and uses them to the edge
+    res = optimize_excitation(model, limits, rate=RATE, seed=0, **SMALL)
+    assert res.shrink == 1.0
+    assert 0.0 <= min(res.margins.values()) <= 2 * _design._EDGE
 
 
 def test_criteria_written_out():

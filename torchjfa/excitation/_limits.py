@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +23,11 @@ from .._joints import permutation
 from ..dynamics import RigidBodyModel
 
 __all__ = ["Limits", "WorkspaceBox", "limits_from_model", "constraint_violations", "check_limits"]
+
+#: the kinds of limit, as `constraint_violations` names them
+KINDS = ("position", "velocity", "acceleration", "torque", "workspace")
+#: those that the joint states alone decide (no regressor, no kinematics)
+JOINT_KINDS = KINDS[:3]
 
 
 @dataclass(frozen=True)
@@ -219,6 +224,7 @@ def constraint_violations(
     theta: torch.Tensor | None = None,
     tau: torch.Tensor | None = None,
     kinematics: _Kinematics | None = None,
+    kinds: Collection[str] = KINDS,
 ) -> dict[str, torch.Tensor]:
     """Normalised excess over each limit at each sample (> 0: violated); differentiable.
 
@@ -230,31 +236,38 @@ def constraint_violations(
         tau: ``(n, n_dof)`` the nominal torques, N m, when already computed (else
             ``Y(q, qd, qdd) theta``).
         kinematics: forward kinematics for the workspace boxes (built when needed).
+        kinds: the kinds of limit to evaluate (default all of `KINDS`; ``("position",
+            "velocity", "acceleration")`` needs neither the regressor nor the kinematics).
 
     Returns:
         ``{"position", "velocity", "acceleration", "torque", "workspace"}`` (only the limits in
-        use) -> ``(n, m)`` tensors: the excess divided by the limit (position: by the range;
-        workspace: by the box's size).
+        use, and among ``kinds``) -> ``(n, m)`` tensors: the excess divided by the limit
+        (position: by the range; workspace: by the box's size).
     """
+    unknown = set(kinds) - set(KINDS)
+    if unknown:
+        raise ValueError(f"unknown kinds of limit {sorted(unknown)}; known: {KINDS}")
     kw = {"dtype": q.dtype, "device": q.device}
-    lo = torch.as_tensor(limits.position_low, **kw)
-    hi = torch.as_tensor(limits.position_high, **kw)
-    span = hi - lo
-    out = {"position": torch.cat([(q - hi) / span, (lo - q) / span], -1)}
+    out = {}
+    if "position" in kinds:
+        lo = torch.as_tensor(limits.position_low, **kw)
+        hi = torch.as_tensor(limits.position_high, **kw)
+        span = hi - lo
+        out["position"] = torch.cat([(q - hi) / span, (lo - q) / span], -1)
     for name, x in (("velocity", qd), ("acceleration", qdd)):
         lim = getattr(limits, name)
         use = np.isfinite(lim)
-        if use.any():
+        if name in kinds and use.any():
             idx = torch.as_tensor(np.flatnonzero(use), device=q.device)
             out[name] = x[:, idx].abs() / torch.as_tensor(lim[use], **kw) - 1.0
     use = np.isfinite(limits.torque)
-    if use.any():
+    if "torque" in kinds and use.any():
         if tau is None:
             theta = model.nominal_theta if theta is None else theta
             tau = model.regressor(q, qd, qdd) @ torch.as_tensor(theta, **kw)
         idx = torch.as_tensor(np.flatnonzero(use), device=q.device)
         out["torque"] = tau[:, idx].abs() / torch.as_tensor(limits.torque[use], **kw) - 1.0
-    if limits.workspace:
+    if "workspace" in kinds and limits.workspace:
         if kinematics is None:
             kinematics = _Kinematics(model, [b.frame for b in limits.workspace], q.dtype, q.device)
         p = kinematics.origins(q)  # (n, n_boxes, 3)
