@@ -16,7 +16,7 @@ from pathlib import Path
 
 from .estimators import available as _estimators
 from .identification._options import IdentificationError as UsageError
-from .identification._options import joint_terms
+from .identification._options import Options, joint_terms
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
@@ -126,6 +126,7 @@ def identify_options(args):
         weighting=args.weighting,
         input_noise=args.input_noise,
         jackknife=args.jackknife,
+        bias_correction=args.bias_correction,
         project=not args.no_project,
         parametrization=args.parametrization,
         description_prior=args.description_prior,
@@ -302,8 +303,16 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--jackknife",
         type=int,
-        default=5,
-        help="blocks for the jackknife spread of the parameters, 0 for none",
+        default=Options.jackknife,
+        help="blocks for the jackknife spread of the parameters, 0 for none (default %(default)s)",
+    )
+    p.add_argument(
+        "--bias-correction",
+        type=int,
+        default=Options.bias_correction,
+        metavar="N",
+        help="refits on the log with re-drawn sensor noise for the noise's bias of the "
+        "estimate (SIMEX), subtracted before the projection; 0 for none (default %(default)s)",
     )
     p.add_argument(
         "--weighting",

@@ -171,6 +171,11 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
         + (f" ({settings['validation']})" if settings.get("validation") else ""),
         *([f"- data: {settings['preparation']}"] if settings.get("preparation") else []),
         *([f"- cut-off: {settings['cutoff']}"] if settings.get("cutoff") else []),
+        *(
+            [f"- bias correction: {settings['bias_correction']}"]
+            if settings.get("bias_correction")
+            else []
+        ),
         f"- model: {model.n_dof} joints, {model.n_params} parameters, friction "
         f"{', '.join(model.friction) or 'none'}"
         + (

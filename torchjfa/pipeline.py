@@ -25,8 +25,8 @@ this flow does not cover.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -58,6 +58,7 @@ __all__ = [
     "Projected",
     "blocks_needed",
     "check_estimator",
+    "correct_bias",
     "estimate",
     "identify",
     "noise_vector",
@@ -79,7 +80,8 @@ class IdentificationResult:
         model: the `RigidBodyModel`.
         theta: ``(n_params,)`` float64, the identified parameters: projected (physically
             consistent) when a projection was made, else ``theta_hat``.
-        theta_hat: ``(n_params,)`` the estimator's unconstrained ``coef_``.
+        theta_hat: ``(n_params,)`` the unconstrained estimate: the estimator's ``coef_``, less
+            ``theta_hat_bias`` where a bias was corrected.
         estimator: the fitted estimator.
         moments: the `Moments` of all the data (``n_features = n_params``).
         folds: the fold `Moments` (the cross-validation folds or the jackknife blocks), or None.
@@ -97,6 +99,14 @@ class IdentificationResult:
             ``identify(..., description_prior=...)``), or None when there was none.
         prior_choice: with ``description_prior="auto"``: weight -> cross-validated RMS torque
             error over the blocks of the training data (N m, weighted equations), else None.
+        theta_hat_bias: ``(n_params,)`` the bias estimate subtracted from the estimator's
+            ``coef_`` (and from the jackknife's refits) to give ``theta_hat``
+            (``identify(..., bias=...)``), or None when none was.
+        theta_hat_redrawn: ``(B, n_params)`` the refits on re-drawn noise behind a
+            `torchjfa.identify` bias correction (`torchjfa.identification.simex_bias`; their
+            spread is a parametric bootstrap's), or None.
+        warnings: what the fit found that the user should know (`torchjfa.identify` adds
+            them to the report's).
     """
 
     model: RigidBodyModel
@@ -113,6 +123,9 @@ class IdentificationResult:
     theta_hat_jackknife: torch.Tensor | None = field(default=None, repr=False)
     prior_weight: float | None = None
     prior_choice: dict[float, float] | None = field(default=None, repr=False)
+    theta_hat_bias: torch.Tensor | None = field(default=None, repr=False)
+    theta_hat_redrawn: torch.Tensor | None = field(default=None, repr=False)
+    warnings: list[str] = field(default_factory=list, repr=False)
 
     def __repr__(self) -> str:
         return (
@@ -203,6 +216,7 @@ class Estimate:
         input_noise: ``(n_params,)`` the input-noise variances given to `estimate`, or None.
         theta_hat_std: ``(n_params,)`` the delete-one-block jackknife spread, or None.
         theta_hat_jackknife: ``(K, n_params)`` the leave-one-block-out coefficients, or None.
+        bias: ``(n_params,)`` the bias subtracted from ``coef_`` (`correct_bias`), or None.
     """
 
     estimator: LinearEstimator
@@ -210,6 +224,7 @@ class Estimate:
     input_noise: torch.Tensor | None = None
     theta_hat_std: torch.Tensor | None = None
     theta_hat_jackknife: torch.Tensor | None = None
+    bias: torch.Tensor | None = None
 
     @property
     def metric_noise(self) -> torch.Tensor | None:
@@ -257,6 +272,24 @@ def estimate(
         input_noise=noise_vector(input_noise, moments.n_features),
         theta_hat_std=theta_hat_std,
         theta_hat_jackknife=coefs,
+    )
+
+
+def correct_bias(fit: Estimate, bias) -> Estimate:
+    """``fit`` with ``bias`` ``(n_params,)`` subtracted from the estimate and from each of the
+    jackknife's refits (so the jackknife spread, now about the corrected estimate, stays)."""
+    bias = torch.as_tensor(bias, dtype=fit.theta_hat.dtype, device=fit.theta_hat.device)
+    if bias.shape != fit.theta_hat.shape or not bool(torch.isfinite(bias).all()):
+        raise ValueError(
+            f"the bias must be {tuple(fit.theta_hat.shape)} finite values, got shape "
+            f"{tuple(bias.shape)}"
+        )
+    jack = fit.theta_hat_jackknife
+    return replace(
+        fit,
+        theta_hat=fit.theta_hat - bias,
+        theta_hat_jackknife=None if jack is None else jack - bias,
+        bias=bias if fit.bias is None else fit.bias + bias,
     )
 
 
@@ -344,6 +377,7 @@ def identify(
     joint_weights=None,
     compiled: bool | None = None,
     description_prior: float | str | None = None,
+    bias: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> IdentificationResult:
     """Identify a robot's parameters from prepared joint logs in one streaming pass.
 
@@ -394,6 +428,10 @@ def identify(
             cross-validation's, else `PRIOR_BLOCKS`): the largest weight whose held-out RMS
             error is within `PRIOR_TOLERANCE` (1%) of the lowest wins. None (default): no
             prior. Needs ``project=True``.
+        bias: a function of the estimator's ``(n_params,)`` coefficients returning their bias
+            ``(n_params,)``, subtracted from them and from the jackknife's refits before the
+            projection (`correct_bias`; e.g. `torchjfa.identification.simex_bias`, which
+            `torchjfa.identify` uses), or None.
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -436,6 +474,8 @@ def identify(
     fit = estimate(
         estimator, moments, folds, input_noise=noise, jackknife=bool(jackknife), progress=progress
     )
+    if bias is not None:
+        fit = correct_bias(fit, bias(fit.theta_hat))
     projected = None
     if project:
         projected = project_estimate(
@@ -466,4 +506,5 @@ def identify(
         theta_hat_jackknife=fit.theta_hat_jackknife,
         prior_weight=None if projected is None else projected.prior_weight,
         prior_choice=None if projected is None else projected.prior_choice,
+        theta_hat_bias=fit.bias,
     )

@@ -20,7 +20,7 @@ from torchjfa.identification import (
 from torchjfa.physical import base_parameters
 from torchjfa.sim import generate_log
 
-OPTIONS = Options(cutoff=20.0, period=None, project=False, jackknife=0)
+OPTIONS = Options(cutoff=20.0, period=None, project=False, jackknife=0, bias_correction=0)
 
 
 @pytest.fixture(scope="module")

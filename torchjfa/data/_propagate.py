@@ -20,6 +20,7 @@ input-noise covariance.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import torch
@@ -175,7 +176,8 @@ def redrawn_logs(
     noise: SignalNoise | None = None,
     n_draws: int = 20,
     seed: int = 0,
-) -> list[JointLog]:
+    lazy: bool = False,
+) -> list[JointLog] | Iterator[JointLog]:
     """``n_draws`` copies of the raw log, each with a fresh draw of white sensor noise of the
     estimated variances added to its q, qd and tau, prepared as the log itself is.
 
@@ -192,10 +194,13 @@ def redrawn_logs(
         noise: the raw signals' white noise (default `signal_noise` of ``raw_log``).
         n_draws: how many copies, at least 1.
         seed: seeds the draws.
+        lazy: return an iterator that prepares one copy at a time (memory of one log, not
+            ``n_draws``); the log's own preparation and its noise estimate run before it
+            returns, so their errors are raised here.
 
     Returns:
-        ``n_draws`` prepared `JointLog` s, each with the samples of ``prepare(raw_log,
-        **preparation)``.
+        ``n_draws`` prepared `JointLog` s (a list, or an iterator when ``lazy``), each with
+        the samples of ``prepare(raw_log, **preparation)``.
 
     Raises:
         ValueError: on ``n_draws < 1``.
@@ -208,7 +213,8 @@ def redrawn_logs(
     noise = signal_noise(raw_log) if noise is None else noise
     g = torch.Generator().manual_seed(int(seed))
     fixed = _fixed(preparation, base.info)
-    return list(_redrawn(raw_log, fixed, noise, n_draws, g, base.n_samples))
+    draws = _redrawn(raw_log, fixed, noise, n_draws, g, base.n_samples)
+    return draws if lazy else list(draws)
 
 
 def _redrawn(raw_log: JointLog, fixed: dict, noise: SignalNoise, n_draws: int, g, n_samples: int):

@@ -1,9 +1,13 @@
-"""`signal_bootstrap`: the parametric bootstrap of the flow's estimate through the signal noise."""
+"""`signal_bootstrap`: the parametric bootstrap of the flow's estimate through the signal noise;
+`simex_bias`: the estimate's errors-in-variables bias from the same refits."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
+from .._progress import progress_bar
 from ..data import SignalNoise, redrawn_logs
 from ..dynamics import RigidBodyModel
 from ..estimators import bootstrap
@@ -11,7 +15,7 @@ from ..pipeline import stream_moments
 from ._options import IdentificationError, Options
 from ._stages import NoiseChoice, PreparedData, make_estimator
 
-__all__ = ["signal_bootstrap"]
+__all__ = ["signal_bootstrap", "simex_bias"]
 
 
 def signal_bootstrap(
@@ -23,6 +27,7 @@ def signal_bootstrap(
     n_draws: int = 20,
     seed: int = 0,
     signal: SignalNoise | None = None,
+    progress: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The spread of the unconstrained estimate by a parametric bootstrap through the sensors.
 
@@ -44,6 +49,7 @@ def signal_bootstrap(
         n_draws: refits, at least 2.
         seed: seeds the draws.
         signal: the raw signals' white noise (default: estimated from the raw log).
+        progress: a progress bar over the refits.
 
     Returns:
         ``(coefs, std)``: ``(n_draws, n_params)`` the refits' unconstrained estimates and
@@ -51,6 +57,7 @@ def signal_bootstrap(
 
     Raises:
         IdentificationError: without the raw log, or on ``n_draws < 2``.
+        torchjfa.data.LogError: when the raw log's noise cannot be read from its spectrum.
     """
     options = Options() if options is None else options
     if data.raw is None:
@@ -61,16 +68,71 @@ def signal_bootstrap(
     estimator = make_estimator(options, noise.input_noise)
     n_train = data.train.n_samples
     folds = max(int(options.jackknife), 2) if estimator.needs_folds else None
-    logs = redrawn_logs(data.raw, data.preparation, noise=signal, n_draws=n_draws, seed=seed)
-    draws = (
-        stream_moments(
-            model,
-            log.select(slice(0, n_train)),
-            n_folds=folds,
-            joint_weights=noise.joint_weights,
-            chunk_size=options.compute.chunk_size,
-            compiled=options.compute.compiled,
-        )
-        for log in logs
-    )
-    return bootstrap(estimator, draws)
+    logs = redrawn_logs(
+        data.raw, data.preparation, noise=signal, n_draws=n_draws, seed=seed, lazy=True
+    )  # one noisy copy of the log in memory at a time
+    with progress_bar(total=n_draws, desc="re-drawn noise", enabled=progress, unit="refit") as bar:
+
+        def draws():
+            for log in logs:
+                yield stream_moments(
+                    model,
+                    log.select(slice(0, n_train)),
+                    n_folds=folds,
+                    joint_weights=noise.joint_weights,
+                    chunk_size=options.compute.chunk_size,
+                    compiled=options.compute.compiled,
+                )
+                bar.update(1)
+
+        return bootstrap(estimator, draws())
+
+
+def simex_bias(
+    model: RigidBodyModel,
+    data: PreparedData,
+    noise: NoiseChoice,
+    theta_hat: torch.Tensor,
+    options: Options | None = None,
+    *,
+    n_draws: int = 20,
+    seed: int = 0,
+    signal: SignalNoise | None = None,
+    progress: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The bias the sensor noise gives the unconstrained estimate, by simulation-extrapolation.
+
+    Noisy regressor columns (above all the differentiated accelerations) bias least squares
+    toward zero along the directions they carry (errors in variables), and no spread covers a
+    bias. The refits of `signal_bootstrap` see the log's noise plus one more draw of it, twice
+    its variance, so their mean moves from ``theta_hat`` by ``b(2 s^2) - b(s^2)``, which to
+    first order in the noise variance ``s^2`` is the bias ``b(s^2)`` itself: ``theta_hat``
+    less it is the linear extrapolation to no noise (SIMEX, Cook and Stefanski 1994, with
+    noise multiples 1 and 2). An estimator given the input noise (Bayesian JFA, JFA) is given
+    twice it for the refits, so that it corrects what it can there as it does on the log.
+
+    In simulation (`scripts/spread_coverage.py`, docs/report.md) the corrected estimate lies
+    closer to the truth, and the jackknife spread covers it at about the nominal rate, where it
+    covers the uncorrected estimate less often than nominal on the head.
+
+    Args:
+        model, data, noise, options, n_draws, seed, signal, progress: as for `signal_bootstrap`.
+        theta_hat: ``(n_params,)`` the estimate of the log itself (the same estimator, noise
+            and joint weights).
+
+    Returns:
+        ``(bias, coefs)``: ``(n_params,)`` the bias to subtract from ``theta_hat`` and
+        ``(n_draws, n_params)`` the refits (their spread is the bootstrap's).
+
+    Raises:
+        as `signal_bootstrap`.
+    """
+    doubled = noise
+    if noise.input_noise is not None:
+        doubled = replace(noise, input_noise=2.0 * noise.input_noise)
+    coefs, _ = signal_bootstrap(
+        model, data, doubled, options, n_draws=n_draws, seed=seed, signal=signal,
+        progress=progress,
+    )  # fmt: skip
+    theta_hat = torch.as_tensor(theta_hat, dtype=coefs.dtype, device=coefs.device)
+    return coefs.mean(0) - theta_hat, coefs

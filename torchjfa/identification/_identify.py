@@ -168,7 +168,8 @@ def identify(
         "estimator": estimator_text(result.estimator),
         "weighting": options.weighting,
         **dict(settings or {}),
-        "warnings": data.warnings + noise.warnings,
+        "bias_correction": _bias_text(result, options),
+        "warnings": data.warnings + noise.warnings + result.warnings,
     }
     report = validate(result, data, noise, record)
     out = Identification(model, raw, data, noise, result, report, options, seconds)
@@ -183,3 +184,25 @@ def _name(thing) -> str:
     if isinstance(thing, str | os.PathLike):
         return str(thing)
     return getattr(thing, "source", None) or getattr(thing, "name", None) or type(thing).__name__
+
+
+def _bias_text(result: IdentificationResult, options: Options) -> str:
+    """One line on the bias correction for the report's settings."""
+    b = result.theta_hat_bias
+    if not options.bias_correction:
+        return "none (bias_correction=0)"
+    if b is None:
+        return "none (the sensor noise could not be read from the log; see the warnings)"
+    text = (
+        f"SIMEX, {options.bias_correction} refits on the raw log with re-drawn sensor noise "
+        "(torchjfa.identification.simex_bias)"
+    )
+    std = result.theta_hat_std
+    if std is not None:
+        z = (b.abs() / std)[std > 0]
+        if z.numel():
+            text += (
+                f"; the correction is {float(z.median()):.2g} jackknife stds (median over "
+                f"the parameters, largest {float(z.max()):.2g})"
+            )
+    return text

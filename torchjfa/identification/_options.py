@@ -105,6 +105,9 @@ class Options:
             `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
             it), or ``(n_params,)`` variances of the (weighted) regressor columns.
         jackknife: blocks of the delete-one-block jackknife spread (0: none).
+        bias_correction: refits on the raw log with re-drawn sensor noise for the
+            errors-in-variables bias of the unconstrained estimate, subtracted before the
+            projection (`torchjfa.identification.simex_bias`; 0: no correction).
 
     Projection (`torchjfa.physical.project`):
         project: project onto physically consistent parameters.
@@ -132,7 +135,8 @@ class Options:
     estimator_options: Mapping[str, object] = field(default_factory=dict)
     weighting: str = "residual"
     input_noise: object = "auto"
-    jackknife: int = 5
+    jackknife: int = 20
+    bias_correction: int = 20
     project: bool = True
     parametrization: str = "log-cholesky"
     description_prior: float | str | None = None
@@ -165,6 +169,11 @@ class Options:
         if not 0.0 < _number(self.validation) < 1.0:
             raise IdentificationError(
                 f"validation must be a fraction in (0, 1), got {self.validation}"
+            )
+        n = self.bias_correction
+        if isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0:
+            raise IdentificationError(
+                f"bias_correction must be 0 (off) or at least 2 refits, got {n!r}"
             )
         if self.description_prior is not None and not self.project:
             raise IdentificationError(

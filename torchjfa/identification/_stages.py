@@ -472,11 +472,38 @@ def make_estimator(options: Options, input_noise: torch.Tensor | None = None):
 def fit(
     model: RigidBodyModel, data: PreparedData, noise: NoiseChoice, options: Options | None = None
 ) -> IdentificationResult:
-    """Moments of the training data -> estimator -> projection (`torchjfa.pipeline.identify`),
-    with the model's Coulomb term smoothed as the preparation chose (`PreparedData.model_for`)."""
+    """Moments of the training data -> estimator -> bias correction -> projection
+    (`torchjfa.pipeline.identify`), with the model's Coulomb term smoothed as the preparation
+    chose (`PreparedData.model_for`).
+
+    With ``options.bias_correction`` refits (default 20) the unconstrained estimate is corrected
+    for the bias the sensor noise gives it (`torchjfa.identification.simex_bias`) before the
+    projection; where the raw log's noise cannot be read (its spectrum), the estimate stays
+    uncorrected and the result's ``warnings`` say so."""
     options = Options() if options is None else options
-    return _identify(
-        data.model_for(model),
+    model = data.model_for(model)
+    notes: list[str] = []
+    refits: list[torch.Tensor] = []
+
+    def bias(theta_hat: torch.Tensor) -> torch.Tensor:
+        from ._bootstrap import simex_bias  # it builds on this module's stages
+
+        try:
+            b, coefs = simex_bias(
+                model, data, noise, theta_hat, options, n_draws=options.bias_correction,
+                progress=options.compute.progress,
+            )  # fmt: skip
+        except (LogError, IdentificationError) as err:
+            notes.append(
+                f"the estimate is not corrected for the sensor noise's bias ({err}); "
+                "bias_correction=0 (--bias-correction 0) turns the correction off"
+            )
+            return torch.zeros_like(theta_hat)
+        refits.append(coefs)
+        return b
+
+    result = _identify(
+        model,
         data.train,
         estimator=make_estimator(options, noise.input_noise),
         project=options.project,
@@ -486,8 +513,14 @@ def fit(
         jackknife=options.jackknife,
         description_prior=options.description_prior,
         joint_weights=noise.joint_weights,
+        bias=bias if options.bias_correction else None,
         **options.compute.stream(),
     )
+    result.warnings.extend(notes)
+    if not refits:
+        result.theta_hat_bias = None
+    result.theta_hat_redrawn = refits[0] if refits else None
+    return result
 
 
 # ------------------------------------------------------------------------------ validate
