@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 from .estimators import available as _estimators
+from .identification._options import AUTO_BIAS_REFITS, Options, joint_terms
 from .identification._options import IdentificationError as UsageError
-from .identification._options import Options, joint_terms
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
@@ -304,15 +304,16 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
         "--jackknife",
         type=int,
         default=Options.jackknife,
-        help="blocks for the jackknife spread of the parameters, 0 for none (default %(default)s)",
+        help="blocks for the jackknife spread of the parameters, 0 for none (default: %(default)s)",
     )
     p.add_argument(
         "--bias-correction",
-        type=int,
+        type=_refits,
         default=Options.bias_correction,
         metavar="N",
         help="refits on the log with re-drawn sensor noise for the noise's bias of the "
-        "estimate (SIMEX), subtracted before the projection; 0 for none (default %(default)s)",
+        "estimate (SIMEX), subtracted before the projection; 0 for none; 'auto': "
+        f"{AUTO_BIAS_REFITS} for --estimator ols, none for the others (default: %(default)s)",
     )
     p.add_argument(
         "--weighting",
@@ -355,3 +356,13 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
         "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
         "found, else the torch path",
     )
+
+
+def _refits(text: str):
+    """``--bias-correction``: ``auto`` or a whole number of refits."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'auto' or a whole number, got {text!r}") from None

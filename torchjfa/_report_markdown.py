@@ -329,10 +329,12 @@ def _prior_note(r) -> list[str]:
 #: 0 with <alpha> ~ 4e3)
 _VALUE_COLUMNS = ("identified", "unconstrained", "jackknife_std")
 
-#: what the jackknife's coverage is in simulation (scripts/spread_coverage.py, 2026-12-02)
+#: what the jackknife's coverage is in simulation (scripts/spread_coverage.py, 2026-12-02:
+#: 50 logs per robot, the bias-corrected estimate, 20 blocks)
 SPREAD_NOTE = (
-    "in simulation +-1 and +-1.96 of a 20-block jackknife cover the truth 55-62 % and 79-87 % "
-    "of the time, not 68 % and 95 %, and fewer blocks cover less (docs/report.md)"
+    "in simulation +-1 and +-1.96 of the 20-block jackknife cover the truth 72-74 % and 94 % of "
+    "the time about the bias-corrected estimate (nominal 68 % and 95 %), 59-72 % and 83-94 % "
+    "without the correction; 5 blocks cover 68 % and 89-90 % (docs/report.md)"
 )
 
 
@@ -347,7 +349,8 @@ def _parameters_section(
         "## Parameters",
         "",
         "identified: the physically consistent parameters (saved in `model.npz`); "
-        "unconstrained: the estimator's; jackknife std: spread of the unconstrained "
+        "unconstrained: the estimator's (less the sensor noise's bias where the header's bias "
+        "correction line says so); jackknife std: spread of the unconstrained "
         f"estimate over delete-one-block refits ({SPREAD_NOTE}); description: the robot "
         "file's value; data: what the data determine (see above: determined, combination, "
         "poorly excited, zero column). Units: kg, kg m, "

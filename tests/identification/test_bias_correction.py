@@ -9,8 +9,9 @@ import torch
 import torchjfa
 from torchjfa.data import LogError
 from torchjfa.dynamics import RigidBodyModel
-from torchjfa.estimators import OLS
+from torchjfa.estimators import OLS, BayesianJFA, Ridge
 from torchjfa.identification import IdentificationError, IdentificationWarning, Options, _bootstrap
+from torchjfa.identification._options import AUTO_BIAS_REFITS
 from torchjfa.pipeline import correct_bias, estimate, identify, project_estimate, stream_moments
 from torchjfa.sim import generate_log, model_path, true_parameters
 
@@ -103,5 +104,18 @@ def test_without_a_readable_noise_the_estimate_stays_uncorrected_with_a_warning(
 
 @pytest.mark.parametrize("bad", [1, -2, True, 2.5, "20"])
 def test_bias_correction_option_is_checked(bad):
-    with pytest.raises(IdentificationError, match="bias_correction must be 0"):
+    with pytest.raises(IdentificationError, match="bias_correction must be 'auto', 0"):
         Options(bias_correction=bad)
+
+
+def test_auto_corrects_least_squares_only():
+    # Bayesian JFA's relevance pruning changes with the noise level: on the simulated head its
+    # SIMEX correction was as large as the estimate, so "auto" leaves it (and the other
+    # shrinkage estimators) alone; a number asks for it anyway
+    auto = Options()
+    assert auto.bias_correction == "auto"
+    assert auto.bias_refits(OLS(fit_intercept=False)) == AUTO_BIAS_REFITS == 20
+    assert auto.bias_refits(BayesianJFA(fit_intercept=False)) == 0
+    assert auto.bias_refits(Ridge(fit_intercept=False, alpha=1.0)) == 0
+    assert Options(bias_correction=5).bias_refits(BayesianJFA(fit_intercept=False)) == 5
+    assert Options(bias_correction=0).bias_refits(OLS(fit_intercept=False)) == 0

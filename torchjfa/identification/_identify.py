@@ -188,13 +188,14 @@ def _name(thing) -> str:
 
 def _bias_text(result: IdentificationResult, options: Options) -> str:
     """One line on the bias correction for the report's settings."""
-    b = result.theta_hat_bias
-    if not options.bias_correction:
-        return "none (bias_correction=0)"
+    b, n = result.theta_hat_bias, options.bias_refits(result.estimator)
+    if not n:
+        why = "auto: least squares only" if options.bias_correction == "auto" else "0"
+        return f"none (bias_correction={why})"
     if b is None:
         return "none (the sensor noise could not be read from the log; see the warnings)"
     text = (
-        f"SIMEX, {options.bias_correction} refits on the raw log with re-drawn sensor noise "
+        f"SIMEX, {n} refits on the raw log with re-drawn sensor noise "
         "(torchjfa.identification.simex_bias)"
     )
     std = result.theta_hat_std

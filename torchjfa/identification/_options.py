@@ -33,6 +33,10 @@ class IdentificationWarning(UserWarning):
     """The identification ran but something in it needs the user's attention."""
 
 
+#: the bias correction's refits with ``bias_correction="auto"`` for least squares
+AUTO_BIAS_REFITS = 20
+
+
 @dataclass(frozen=True)
 class Compute:
     """Where and how the pass over the data runs (`torchjfa.pipeline.stream_moments`).
@@ -107,7 +111,11 @@ class Options:
         jackknife: blocks of the delete-one-block jackknife spread (0: none).
         bias_correction: refits on the raw log with re-drawn sensor noise for the
             errors-in-variables bias of the unconstrained estimate, subtracted before the
-            projection (`torchjfa.identification.simex_bias`; 0: no correction).
+            projection (`torchjfa.identification.simex_bias`; 0: no correction), or ``"auto"``:
+            `AUTO_BIAS_REFITS` for least squares (OLS), none for the other estimators (the
+            shrinkage and relevance pruning of Bayesian JFA, ridge, lasso... change with the
+            noise level, so the linear extrapolation does not hold for them: on the simulated
+            head, Bayesian JFA's correction was as large as the estimate; `bias_refits`).
 
     Projection (`torchjfa.physical.project`):
         project: project onto physically consistent parameters.
@@ -136,7 +144,7 @@ class Options:
     weighting: str = "residual"
     input_noise: object = "auto"
     jackknife: int = 20
-    bias_correction: int = 20
+    bias_correction: int | str = "auto"
     project: bool = True
     parametrization: str = "log-cholesky"
     description_prior: float | str | None = None
@@ -171,14 +179,22 @@ class Options:
                 f"validation must be a fraction in (0, 1), got {self.validation}"
             )
         n = self.bias_correction
-        if isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0:
+        if n != "auto" and (isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0):
             raise IdentificationError(
-                f"bias_correction must be 0 (off) or at least 2 refits, got {n!r}"
+                f"bias_correction must be 'auto', 0 (off) or at least 2 refits, got {n!r}"
             )
         if self.description_prior is not None and not self.project:
             raise IdentificationError(
                 "the description prior acts in the projection: it needs project=True"
             )
+
+    def bias_refits(self, estimator) -> int:
+        """How many refits the bias correction makes for ``estimator`` (0: none)."""
+        if self.bias_correction != "auto":
+            return int(self.bias_correction)
+        from ..estimators import OLS
+
+        return AUTO_BIAS_REFITS if type(estimator) is OLS else 0
 
     def replace(self, **changes) -> Options:
         """A copy with ``changes`` (``Options`` is frozen)."""

@@ -476,12 +476,15 @@ def fit(
     (`torchjfa.pipeline.identify`), with the model's Coulomb term smoothed as the preparation
     chose (`PreparedData.model_for`).
 
-    With ``options.bias_correction`` refits (default 20) the unconstrained estimate is corrected
+    With ``options.bias_refits`` refits (by default 20 for OLS, none for the other estimators)
+    the unconstrained estimate is corrected
     for the bias the sensor noise gives it (`torchjfa.identification.simex_bias`) before the
     projection; where the raw log's noise cannot be read (its spectrum), the estimate stays
     uncorrected and the result's ``warnings`` say so."""
     options = Options() if options is None else options
     model = data.model_for(model)
+    estimator = make_estimator(options, noise.input_noise)
+    n_refits = options.bias_refits(estimator)
     notes: list[str] = []
     refits: list[torch.Tensor] = []
 
@@ -490,7 +493,7 @@ def fit(
 
         try:
             b, coefs = simex_bias(
-                model, data, noise, theta_hat, options, n_draws=options.bias_correction,
+                model, data, noise, theta_hat, options, n_draws=n_refits,
                 progress=options.compute.progress,
             )  # fmt: skip
         except (LogError, IdentificationError) as err:
@@ -505,7 +508,7 @@ def fit(
     result = _identify(
         model,
         data.train,
-        estimator=make_estimator(options, noise.input_noise),
+        estimator=estimator,
         project=options.project,
         parametrization=options.parametrization,
         input_noise=noise.input_noise,
@@ -513,7 +516,7 @@ def fit(
         jackknife=options.jackknife,
         description_prior=options.description_prior,
         joint_weights=noise.joint_weights,
-        bias=bias if options.bias_correction else None,
+        bias=bias if n_refits else None,
         **options.compute.stream(),
     )
     result.warnings.extend(notes)
