@@ -10,8 +10,13 @@ import torchjfa
 from torchjfa.data import LogError
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA, Ridge
-from torchjfa.identification import IdentificationError, IdentificationWarning, Options, _bootstrap
-from torchjfa.identification._options import AUTO_BIAS_REFITS
+from torchjfa.identification import (
+    AUTO_BIAS_REFITS,
+    IdentificationError,
+    IdentificationWarning,
+    Options,
+    _bootstrap,
+)
 from torchjfa.pipeline import correct_bias, estimate, identify, project_estimate, stream_moments
 from torchjfa.sim import generate_log, model_path, true_parameters
 

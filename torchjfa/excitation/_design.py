@@ -400,8 +400,9 @@ class _Design:
     ``states`` maps raw Fourier coefficients ``(n, H)`` to the constrained ones and the joint
     states ``(n_grid, n)``; ``objective`` is the criterion plus ``rho`` times the limits'
     penalty, and the criterion alone. The joint limits are evaluated on a grid `_DENSE` times
-    finer than ``t`` (the criterion, torque and workspace limits on ``t``). The criterion is `soft_condition` at exponent ``p`` when
-    ``p`` is set, else ``criterion`` (``"d"`` for ``"d+condition"``).
+    finer than ``t`` (the criterion, torque and workspace limits on ``t``). The criterion is
+    `soft_condition` at exponent ``p`` when ``p`` is set, else ``criterion`` (``"d"`` for
+    ``"d+condition"``).
     """
 
     def __init__(self, model, limits, basis, criterion, joint_weights, kin, t, q0, f0) -> None:

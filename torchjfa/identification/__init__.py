@@ -8,16 +8,20 @@ each taking the previous one's output:
 2. `read`: the raw log as a `torchjfa.data.JointLog`, checked (`RawLog`);
 3. `prepare_data`: cut-off, filter, derivatives, the held-out part (`PreparedData`);
 4. `choose_noise`: joint weights and the regressor's input noise (`NoiseChoice`);
-5. `fit`: moments, estimator, projection (`torchjfa.pipeline.identify`;
+5. `fit`: moments, estimator, bias correction (`simex_bias`), projection
+   (`torchjfa.pipeline.identify`;
    `torchjfa.pipeline.IdentificationResult`);
 6. `validate`: the report on the held-out data (`torchjfa.report.IdentificationReport`).
 
-`signal_bootstrap` refits on re-drawn sensor noise for the spread of the unconstrained estimate.
+`signal_bootstrap` refits on re-drawn sensor noise for the spread of the unconstrained estimate;
+`simex_bias` takes the sensor noise's bias of the estimate from the same refits.
 """
 
 from ._bootstrap import signal_bootstrap as signal_bootstrap
+from ._bootstrap import simex_bias as simex_bias
 from ._identify import Identification as Identification
 from ._identify import identify as identify
+from ._options import AUTO_BIAS_REFITS as AUTO_BIAS_REFITS
 from ._options import JOINT_TERMS as JOINT_TERMS
 from ._options import Compute as Compute
 from ._options import IdentificationError as IdentificationError

@@ -476,11 +476,11 @@ def fit(
     (`torchjfa.pipeline.identify`), with the model's Coulomb term smoothed as the preparation
     chose (`PreparedData.model_for`).
 
-    With ``options.bias_refits`` refits (by default 20 for OLS, none for the other estimators)
-    the unconstrained estimate is corrected
-    for the bias the sensor noise gives it (`torchjfa.identification.simex_bias`) before the
-    projection; where the raw log's noise cannot be read (its spectrum), the estimate stays
-    uncorrected and the result's ``warnings`` say so."""
+    With ``options.bias_refits(estimator)`` refits (by default 20 for OLS, none for the other
+    estimators) the unconstrained estimate is corrected for the bias the sensor noise gives it
+    (`torchjfa.identification.simex_bias`) before the projection; where the raw log's noise
+    cannot be read (its spectrum), the estimate stays uncorrected and the result's
+    ``warnings`` say so."""
     options = Options() if options is None else options
     model = data.model_for(model)
     estimator = make_estimator(options, noise.input_noise)
