@@ -431,7 +431,7 @@ def identify(
         bias: a function of the estimator's ``(n_params,)`` coefficients returning their bias
             ``(n_params,)``, subtracted from them and from the jackknife's refits before the
             projection (`correct_bias`; e.g. `torchjfa.identification.simex_bias`, which
-            `torchjfa.identify` uses), or None.
+            `torchjfa.identify` uses), or None to leave them as they are; or None.
 
     Returns:
         An `IdentificationResult` (``.theta``, ``.theta_hat``, ``.estimator``, ``.moments``,
@@ -474,8 +474,9 @@ def identify(
     fit = estimate(
         estimator, moments, folds, input_noise=noise, jackknife=bool(jackknife), progress=progress
     )
-    if bias is not None:
-        fit = correct_bias(fit, bias(fit.theta_hat))
+    b = None if bias is None else bias(fit.theta_hat)
+    if b is not None:
+        fit = correct_bias(fit, b)
     projected = None
     if project:
         projected = project_estimate(

@@ -488,7 +488,7 @@ def fit(
     notes: list[str] = []
     refits: list[torch.Tensor] = []
 
-    def bias(theta_hat: torch.Tensor) -> torch.Tensor:
+    def bias(theta_hat: torch.Tensor) -> torch.Tensor | None:
         from ._bootstrap import simex_bias  # it builds on this module's stages
 
         try:
@@ -501,7 +501,7 @@ def fit(
                 f"the estimate is not corrected for the sensor noise's bias ({err}); "
                 "bias_correction=0 (--bias-correction 0) turns the correction off"
             )
-            return torch.zeros_like(theta_hat)
+            return None
         refits.append(coefs)
         return b
 
@@ -520,8 +520,6 @@ def fit(
         **options.compute.stream(),
     )
     result.warnings.extend(notes)
-    if not refits:
-        result.theta_hat_bias = None
     result.theta_hat_redrawn = refits[0] if refits else None
     return result
 
