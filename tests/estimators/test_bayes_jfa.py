@@ -365,35 +365,6 @@ def test_constant_column_gets_zero():
         assert bool((est.coef_[[0, 2, 3]] != 0).all())
 
 
-@pytest.mark.parametrize("bayes", [True, False])
-@pytest.mark.parametrize("fixed_x", [True, False])
-def test_squarem_packs_every_free_row(bayes, fixed_x):
-    # SQUAREM extrapolates the packed state: every free row must travel through it (an
-    # off-by-one once left psi_x, or psi_z when psi_x was fixed, out of the extrapolation);
-    # only the rows held fixed come from the template
-    import numpy as np
-
-    from torchjfa.estimators import _bayes_jfa as em
-
-    rng = np.random.default_rng(0)
-    d = 5
-    st = rng.uniform(0.1, 2.0, size=(9, d))
-    st[em._MZ] *= rng.choice([-1.0, 1.0], size=d)
-    st[em._WZ] = st[em._MZ] ** 2 + st[em._VZ]
-    st[em._WX] = st[em._MX] ** 2 + st[em._VX]
-    free = [em._MZ, em._MX, em._PZ] + ([em._VZ, em._VX, em._B] if bayes else [])
-    free += [] if fixed_x else [em._PX]
-    th = np.empty(em.th_size(d, bayes, fixed_x))
-    em._pack(st, 0.3, bayes, fixed_x, th)
-    template = st.copy()
-    template[free] = 7.0  # the unpacked state must not take these from the template
-    out = np.empty_like(st)
-    psy = em._unpack(th, template, bayes, 1e-6, fixed_x, 1e-3, out)
-    # variances travel as their bit patterns, rounded to float64: 1e-13 relative
-    assert psy == pytest.approx(0.3, rel=1e-13)
-    np.testing.assert_allclose(out, st, rtol=1e-13, atol=0)
-
-
 @pytest.mark.parametrize("cls", [BayesianJFA, JFA])
 def test_input_noise_at_or_above_a_columns_variance_is_refused(cls):
     """Noise >= var(x_m) leaves no signal in column m (psi_x + w_x^2 = var): the loop clamped

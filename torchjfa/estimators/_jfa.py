@@ -7,9 +7,12 @@ output is ``y = sum_m z_m + noise`` with ``z_m = w_zm t_m + noise``. Use these e
 the regressors themselves are noisy (joint velocities and accelerations of a robot): `BayesianJFA`
 also prunes irrelevant and redundant inputs (automatic relevance determination).
 
-Both are fitted by (variational) EM from the sufficient statistics ``N, X^T X, X^T y, y^T y``
-alone, with the update equations of ``docs/bayesian-jfa.md``: after the single pass that forms
-the statistics, an iteration costs one ``d x d`` matrix-vector product, whatever ``N``.
+Both are fitted from the sufficient statistics ``N, X^T X, X^T y, y^T y`` alone, as batched
+torch tensor ops (``_jfa_fit.py``, ``_jfa_bound.py``): `JFA` at the closed-form maximum of its
+likelihood, `BayesianJFA` by a monotone Newton optimiser of the variational bound with prune
+moves, which converges in tens of iterations where the plain EM of ``docs/bayesian-jfa.md``
+(``accelerate=False``, kept as the reference) needs thousands. After the single pass that forms
+the statistics, nothing depends on ``N``.
 
 Known limit (see the note): the de-noised slope ``w_z / w_x`` (eq. 4) is not identified from
 second moments; the prior (or the starting point, for `JFA`) picks it. Pass ``input_noise``
@@ -22,39 +25,42 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import numpy as np
 import torch
 
 from .._progress import progress_bar
 from .._validation import as_tensor, check_finite, check_X
 from ..stats import Moments, as_folds
-from . import _bayes_jfa as _em
+from . import _jfa_bound as jb
+from . import _jfa_fit
 from ._base import LinearEstimator
 
 __all__ = ["JFA", "BayesianJFA"]
 
-_BAR_BLOCK = 2000  # iterations per call of the compiled loop when a progress bar is shown
+_BAR_BLOCK = 50  # iterations between refreshes of the progress bar
 # ard="output": the fixed prior precision of w_x in standardised units (the data pin w_x^2 to
 # var(x) - psi_x once psi_x is known; this only keeps the prior proper)
 _OUTPUT_ARD_WX_PRECISION = 1e-8
-
-
-class _Stats:
-    """Standardised moments of the active columns (unit variance, centred if asked), float64."""
-
-    __slots__ = ("n", "xx", "xy", "yy", "dg")
-
-    def __init__(self, n: float, xx: np.ndarray, xy: np.ndarray, yy: float) -> None:
-        self.n, self.xx, self.xy, self.yy = float(n), xx, xy, float(yy)
-        self.dg = np.ascontiguousarray(np.diagonal(xx))
-
-
-def _np(t: torch.Tensor) -> np.ndarray:
-    """A CPU float64 NumPy copy of a tensor (the loop's working arrays)."""
-    return t.detach().to(device="cpu", dtype=torch.float64).numpy().copy()
-
-
 _ROUNDOFF_RMS = 1e-10
+
+
+class _Bar:
+    """A progress bar refreshed every `_BAR_BLOCK` iterations (the fit calls ``update(1)``)."""
+
+    def __init__(self, bar) -> None:
+        self.bar, self.pending = bar, 0
+
+    def update(self, k: int) -> None:
+        self.pending += k
+        if self.pending >= _BAR_BLOCK:
+            self.flush()
+
+    def set_postfix(self, **kw) -> None:
+        if self.pending == 0:
+            self.bar.set_postfix(**kw)
+
+    def flush(self) -> None:
+        self.bar.update(self.pending)
+        self.pending = 0
 
 
 def _check_noise_below_variance(noise, active, variance, centred: bool) -> None:
@@ -120,31 +126,24 @@ class _JFABase(LinearEstimator):
         total, _ = as_folds(moments)
         if not float(total.n) > 0:
             raise ValueError("cannot fit on Moments with no samples (total weight 0)")
-        self._check_params(total.n_features)
         d = total.n_features
+        self._check_params(d)
         dev = total.xtx.device
         noise = self._input_noise(d, dev)
         active = self._active_columns(total)
         self._warn_if_underdetermined(total, active)
         m = total.select(active)
         sxx, sxy, syy, n = self._centered(m)
-        nf = float(n)
-        sx = torch.sqrt(torch.diagonal(sxx) / nf)  # input scales, caller's units
-        sy = torch.sqrt(syy / nf)
+        sx = torch.sqrt(torch.diagonal(sxx) / n)  # input scales, caller's units
+        sy = torch.sqrt(syy / n)
         if not float(sy) > 0:
             raise ValueError("y is constant (zero variance); there is nothing to regress")
         if noise is not None:
             _check_noise_below_variance(noise, active, sx * sx, self.fit_intercept)
-        # the loop runs on CPU float64 NumPy copies of the O(d^2) moments (see _bayes_jfa.py)
-        S = _Stats(
-            nf,
-            _np(sxx / torch.outer(sx, sx)),
-            _np(sxy / (sx * sy)),
-            float(syy / (sy * sy)),
-        )
-        psx_fixed = None if noise is None else _np(noise[active] / (sx * sx))
-        st, hist, info = self._run(S, psx_fixed)
-        self._store(st, hist, info, active, sx, sy, m, total)
+        S = jb.Stats(sxx / torch.outer(sx, sx), sxy / (sx * sy), syy / (sy * sy), n)
+        psx_fixed = None if noise is None else noise[active] / (sx * sx)
+        res = self._run(S, psx_fixed)
+        self._store(res, active, sx, sy, m, total)
         return self
 
     def predict(self, X, *, noiseless: bool = False) -> torch.Tensor:
@@ -163,7 +162,8 @@ class _JFABase(LinearEstimator):
         return X @ self.coef_noisy_.to(X) + self.intercept_noisy_.to(X)
 
     # ------------------------------------------------------------------ internals
-    def _check_params(self, n_features: int) -> None:
+    def _check_params(self, n_features: int | None = None) -> None:
+        """Refuse bad hyper-parameters (``n_features`` is unused: the common signature)."""
         if isinstance(self.max_iter, bool) or int(self.max_iter) != self.max_iter:
             raise TypeError(f"max_iter must be an integer, got {self.max_iter!r}")
         if self.max_iter < 1:
@@ -194,77 +194,44 @@ class _JFABase(LinearEstimator):
             )
         return v
 
-    def _hyper(self, fixed_x: bool) -> tuple:
+    def _hyper(self, fixed_x: bool) -> jb.Hyper:
         floors = (float(self.noise_floor), fixed_x, float(self.noise_y_floor))
-        return (False, 0.0, 0.0, *floors, -1.0)
+        return jb.Hyper(False, 0.0, 0.0, *floors, -1.0)
 
-    def _init(self, S: _Stats, psx_fixed: np.ndarray | None) -> tuple[np.ndarray, float]:
-        """The note's initialisation, in standardised units (every variance is 1).
+    def _method(self) -> str:
+        return "closed" if self.accelerate else "em"
 
-        Returns the state array (rows as in ``_bayes_jfa``) and psi_y.
-        """
-        floor = self.noise_floor
-        d = S.xy.shape[0]
-        st = np.zeros((9, d))
-        psx = np.full(d, 0.5) if psx_fixed is None else np.maximum(psx_fixed, floor)
-        mx = np.sqrt(np.maximum(1.0 - psx, 0.01))
-        mz = (S.xy / S.n) / mx  # cov(x_m, y) / <w_xm>
-        # the variance of y left over, split equally between psi_y and sum psi_z; when the
-        # w_z above already explain more than var(y) (correlated inputs), keep 1% of it
-        left = max(1.0 - float(mz @ mz), 0.01)
-        st[_em._MZ], st[_em._MX] = mz, mx
-        st[_em._WZ], st[_em._WX] = mz * mz, mx * mx
-        # Q(alpha) once before the first sweep
-        hp = self._hyper(False)
-        st[_em._B] = 0.5 * (st[_em._WZ] + (st[_em._WX] if hp[6] < 0 else 0.0)) + hp[2]
-        st[_em._PZ], st[_em._PX] = max(0.5 * left / d, floor), psx
-        psy = max(0.5 * left, float(self.noise_y_floor))
-        return st, psy
-
-    def _run(self, S: _Stats, psx_fixed: np.ndarray | None):
-        """The EM loop (compiled, ``_bayes_jfa.run``). Returns (state, bounds, info)."""
+    def _run(self, S: jb.Stats, psx_fixed: torch.Tensor | None) -> _jfa_fit.Result:
+        """The fit (``_jfa_fit.fit``) of the standardised moments, with a progress bar."""
         hp = self._hyper(psx_fixed is not None)
-        d, max_iter = S.xy.shape[0], int(self.max_iter)
-        const = _em.bound_const(S.n, d, hp)
-        st, psy = self._init(S, psx_fixed)
-        _em.note_first_compile()
-        es, work, hist = np.empty((5, d)), np.empty((7, d)), np.empty(max_iter)
-        ctl = _em.start(S.xx, S.dg, S.xy, S.yy, S.n, st, psy, hp, const, es, work)
-        hist[0] = ctl[_em._C_L]
-        # without a bar, one call runs to the end; with one, calls of ~0.1 s update it
-        block = _BAR_BLOCK if self.verbose else max_iter
-        bar = progress_bar(total=max_iter, desc=type(self).__name__, enabled=self.verbose)
-        with bar, np.errstate(all="ignore"):  # a rejected SQUAREM trial may overflow
-            args = (S.xx, S.dg, S.xy, S.yy, S.n, st, hp, const, es, work, ctl, hist)
-            tols = (max_iter, float(self.tol), float(self.coef_tol), bool(self.accelerate))
-            while True:
-                done = int(ctl[_em._C_COUNT])
-                code = _em.run(*args, min(done + block, max_iter), *tols)
-                bar.update(int(ctl[_em._C_COUNT]) - done)
-                bar.set_postfix(bound=f"{ctl[_em._C_L]:.8g}", step=f"{ctl[_em._C_STEP]:.3g}")
-                if code >= 0:
-                    break
-        n = int(ctl[_em._C_COUNT])
-        info = {
-            "reason": _em.REASONS[code],
-            "accepted": int(ctl[_em._C_ACC]),
-            "n_estep": int(ctl[_em._C_ESTEP]),
-            "k": es[_em._K].copy(),
-            "psy": float(ctl[_em._C_PSY]),
-        }
-        return st, torch.tensor(hist[:n], dtype=torch.float64), info
+        bar = progress_bar(total=int(self.max_iter), desc=type(self).__name__, enabled=self.verbose)
+        with bar:
+            tick = _Bar(bar) if self.verbose else None
+            res = _jfa_fit.fit(
+                S,
+                psx_fixed,
+                hp,
+                method=self._method(),
+                max_iter=int(self.max_iter),
+                tol=float(self.tol),
+                coef_tol=float(self.coef_tol),
+                bar=tick,
+            )
+            if tick is not None:
+                tick.flush()
+        return res
 
-    def _store(self, st, hist, info, active, sx, sy, m: Moments, total: Moments) -> None:
+    def _store(self, res: _jfa_fit.Result, active, sx, sy, m: Moments, total: Moments) -> None:
         """Map the standardised solution back to the caller's units, zeros for constant columns."""
         d = total.n_features
         kw = {"dtype": torch.float64, "device": total.xtx.device}
-        bayes = self._bayes
-        rows = (_em._MZ, _em._MX, _em._PZ, _em._PX, _em._B)
-        mz, mx, psz, psx, b = (torch.as_tensor(st[r].copy(), **kw) for r in rows)
-        k = torch.as_tensor(info["k"], **kw)
-        coef = torch.as_tensor(_em.coef(st, bayes), **kw)
-        psy = torch.tensor(info["psy"], **kw)
-        hist = hist.to(total.xtx.device)
+        hp = self._hyper(False)
+        st = res.st
+        mz, mx, vz, vx, b, psz, psx = st.unbind(-2)
+        k = jb.predictor(st)
+        coef = _jfa_fit.coef(st, hp)
+        n_iter = int(res.n_iter)
+        hist = res.history[:n_iter]
 
         def full(v, fill=0.0):
             out = torch.full((d,), fill, **kw)
@@ -275,13 +242,12 @@ class _JFABase(LinearEstimator):
         self.coef_noisy_ = full(k * sy / sx)
         self.noise_x_ = full(psx * sx * sx)
         self.noise_z_ = full(psz * sy * sy)
-        self.noise_y_ = psy * sy * sy  # 0-d tensor
+        self.noise_y_ = res.psy * sy * sy  # 0-d tensor
         self.weights_z_ = full(mz * sy)  # <w_z> in y's units per unit-variance t
         self.weights_x_ = full(mx * sx)
-        if bayes:
-            self.relevance_ = full((self._hyper(False)[1]) / b, math.inf)
+        if hp.bayes:
+            self.relevance_ = full(hp.a / b, math.inf)
             # first-order spread of w_z / w_x under the factorised posterior Q(w_z) Q(w_x)
-            vz, vx = (torch.as_tensor(st[r].copy(), **kw) for r in (_em._VZ, _em._VX))
             var = (vz + (mz / mx) ** 2 * vx) / (mx * mx)
             self.coef_std_ = full(torch.sqrt(var) * sy / sx)
         self.n_features_in_ = d
@@ -293,13 +259,13 @@ class _JFABase(LinearEstimator):
             self.intercept_ = torch.zeros((), **kw)
             self.intercept_noisy_ = torch.zeros((), **kw)
         # the bound on log p(X, y) in the caller's units: the change of variables adds -N log|J|
-        jac = float(m.n) * float(torch.log(sx).sum() + torch.log(sy))
+        jac = m.n * (torch.log(sx).sum() + torch.log(sy))
         self.lower_bound_ = hist - jac
-        self.n_iter_ = int(hist.shape[0])
-        self.stop_reason_ = info["reason"]
-        self.converged_ = info["reason"] != "max_iter"
-        self.n_accelerated_ = info["accepted"]
-        self.n_estep_ = info["n_estep"]
+        self.n_iter_ = n_iter
+        self.stop_reason_ = _jfa_fit.REASONS[int(res.reason)]
+        self.converged_ = self.stop_reason_ != "max_iter"
+        self.n_accelerated_ = int(res.n_accepted)
+        self.n_estep_ = int(res.n_estep)
 
 
 class JFA(_JFABase):
@@ -309,17 +275,22 @@ class JFA(_JFABase):
     point estimates. Prefer `BayesianJFA` on ill-conditioned or redundant inputs.
 
     Args:
-        max_iter: iteration cap (E-steps of the plain EM path; one ``d x d`` mat-vec each).
-        tol: stop when the log-likelihood changes by at most ``tol * max(|L|, N)``.
-        coef_tol: stop when ``||delta coef|| <= coef_tol ||coef||`` (standardised units).
+        max_iter: iteration cap of the plain EM path (``accelerate=False``).
+        tol: EM stops when the log-likelihood changes by at most ``tol * max(|L|, N)``.
+        coef_tol: EM stops when ``||delta coef|| <= coef_tol ||coef||`` (standardised units).
         input_noise: optional known noise variance per input, shape ``(d,)``, caller's units
             (squared units of each column), below each column's variance. ``psi_x`` is then
             held fixed at it.
         noise_floor: lower bound of psi_x and psi_z, as a fraction of the variance of x_m / y.
         noise_y_floor: lower bound of psi_y, as a fraction of var(y) (the likelihood is flat
             along ``psi_y + sum psi_z``).
-        accelerate: SQUAREM steps after every two EM sweeps, kept only when the likelihood
-            does not decrease.
+        accelerate: ``True`` (default): the closed-form maximum of the likelihood (each
+            input's variance ``diag(X^T X) / N``, the predictor ``k`` = OLS, the residual
+            variance ``RSS / N``; ``docs/bayesian-jfa-fitting.md``), at the point of the flat
+            ridge of equally likely states where psi_x is the given noise or half of each
+            column's variance; plain EM where the floors or the given noise make that optimum
+            unreachable. ``False``: plain EM from the initialisation of the note (the ridge
+            point EM drifts to).
         fit_intercept: centre ``X`` and ``y`` (inputs are always scaled to unit variance).
         verbose: show a progress bar.
 
@@ -330,9 +301,10 @@ class JFA(_JFABase):
         noise_x_, noise_z_: ``(d,)`` psi_x (column units squared) and psi_z (y units squared);
             0 for constant columns. noise_y_: 0-d psi_y (y units squared).
         weights_x_, weights_z_: ``(d,)`` the loadings in caller's units (t has unit variance).
-        lower_bound_: ``(n_iter_,)`` the log-likelihood of (X, y) after each iteration, nats.
+        lower_bound_: ``(n_iter_,)`` the log-likelihood of (X, y) after each iteration, nats
+            (closed form: after the first EM sweep from the initialisation, and at the optimum).
         n_iter_, converged_, stop_reason_ (``"bound"``, ``"coef"`` or ``"max_iter"``).
-        n_accelerated_: accepted SQUAREM steps; n_estep_: E-steps computed in all.
+        n_accelerated_: 0 (kept for the common interface); n_estep_: E-steps computed.
     """
 
     def __init__(
@@ -367,23 +339,25 @@ class BayesianJFA(_JFABase):
     ``w_zm`` and ``w_xm`` share a precision ``alpha_m ~ Gamma(a0, b0)`` (or, with
     ``ard="output"``, it governs ``w_zm`` alone): an input that does not explain the output is
     pruned (``alpha_m`` large, both weights near 0), which regularises
-    ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only; each iteration
-    costs one ``d x d`` mat-vec. The update equations are those of ``docs/bayesian-jfa.md``.
+    ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only, by a monotone
+    Newton optimiser of the bound of ``docs/bayesian-jfa.md`` (``_jfa_fit.run_newton``).
 
     Args:
-        max_iter: iteration cap (one iteration = one VB sweep or one accepted SQUAREM step;
-            each costs one E-step). Convergence along the unidentified direction of eq. (4)
-            is slow, hence the large default; check ``stop_reason_``.
-        tol: stop when the lower bound changes by at most ``tol * max(|L|, N)`` in an iteration.
-            Keep it tiny: the bound crawls along plateaus before the pruning of redundant inputs
-            moves on. Measured on the paper's protocol (10 relevant, 22 redundant, 45
-            irrelevant inputs, N = 500,000, input noise given): the relative change per
-            iteration is 2e-7 after 100 iterations, where the held-out nMSE of ``coef_`` is 40,
-            and 1e-9 after 10,000, where it is 0.033 (0.029 after 20,000). Without
-            ``input_noise`` the noisy-input predictor settles (held-out nMSE 0.3555 after 5,000
-            iterations, 0.3552 after 20,000) but ``coef_`` does not (nMSE 1.1 to 1.7): eq. (4)
-            is not identified there, and no stopping rule can make it settle.
-        coef_tol: stop when ``||delta coef_|| <= coef_tol ||coef_||`` (standardised units).
+        max_iter: iteration cap (one iteration = one Newton or prune trial, or one plain EM
+            sweep with ``accelerate=False``). The Newton optimiser converges in tens of
+            iterations; plain EM needs thousands, often more than any cap.
+        tol: the Newton optimiser has converged when a kept step changes the lower bound by
+            at most ``tol * max(|L|, N)`` and no parameter by more than ``coef_tol``, or when
+            the next step's gain is at round-off; it stops when then no prune move gains. Plain
+            EM stops when the bound changes by at most ``tol * max(|L|, N)`` in a sweep.
+            With ``tol = coef_tol = 0`` both run ``max_iter`` iterations.
+        coef_tol: the largest change of a parameter in a converged Newton step (posterior means
+            in standardised units, logs of the variances). Plain EM stops when
+            ``||delta coef_|| <= coef_tol ||coef_||`` (standardised units). Plain EM's
+            rate along the unidentified direction of eq. (4) is ``1 - O(1/N)``
+            (``docs/bayesian-jfa-fitting.md``), so its answer moves with the iteration count
+            and the chunking of the data; the Newton optimiser's converges quadratically and
+            agrees whatever the chunking, to round-off.
         a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (the note: 1e-8).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
             caller's units (squared units of each column), e.g. half the variance of the
@@ -399,8 +373,7 @@ class BayesianJFA(_JFABase):
             that is measured well but does not matter for y, and such inputs are not pruned;
             with alpha_m on ``w_zm`` alone they are. Measured on the paper's Fig. 2 protocol
             at input SNR 2 (``docs/results.md``): clean-test nMSE 0.08 instead of 0.11 with
-            90 irrelevant inputs, and lower in every scenario. It converges more slowly
-            (2 to 5x the iterations there). Without ``input_noise`` it is allowed but
+            90 irrelevant inputs, and lower in every scenario. Without ``input_noise`` it is allowed but
             untested against the paper.
         noise_floor: lower bound of psi_x and psi_z as a fraction of the variance of x_m / y.
         noise_y_floor: lower bound of psi_y as a fraction of var(y). psi_y drifts towards 0
@@ -408,9 +381,8 @@ class BayesianJFA(_JFABase):
             with it by O(psi_y) (measured: 3e-4 relative between 1e-3 and the limit), while
             reaching a smaller floor takes many more iterations. Must be well below
             ``1 - R^2`` of the data.
-        accelerate: after every two VB sweeps, a SQUAREM extrapolation (Varadhan and Roland
-            2008; means linear, variances in log), kept only if the bound does not decrease,
-            so the bound stays monotone. About 10x fewer iterations on the slow directions.
+        accelerate: ``True`` (default): the Newton optimiser; ``False``: plain variational EM
+            sweeps (the note's updates, the reference). Both keep the bound monotone.
         fit_intercept: centre ``X`` and ``y`` (inputs and output are always scaled to unit
             variance inside; results are mapped back).
         verbose: show a progress bar.
@@ -446,7 +418,10 @@ class BayesianJFA(_JFABase):
             (caller's units, nats) after each iteration; non-decreasing.
         n_iter_: iterations run. converged_: whether a tolerance stopped it. stop_reason_:
             ``"bound"``, ``"coef"`` or ``"max_iter"``.
-        n_accelerated_: accepted SQUAREM steps; n_estep_: E-steps computed in all.
+        n_accelerated_: kept Newton steps and prunes. n_estep_: E-step equivalents (the cost
+            in ``d x d`` mat-vecs): one per bound evaluation, E-step, gradient and Hessian,
+            plus each Newton solve's Cholesky flops over a mat-vec's (``(d + 1)^3 / (6 d^2)``
+            structured, ``(6 d + 1)^3 / (6 d^2)`` dense).
         active_: ``(d,)`` bool, the non-constant columns that were modelled.
 
     Example:
@@ -487,7 +462,7 @@ class BayesianJFA(_JFABase):
         self.b0 = b0
         self.ard = ard
 
-    def _check_params(self, n_features: int) -> None:
+    def _check_params(self, n_features: int | None = None) -> None:
         super()._check_params(n_features)
         for name in ("a0", "b0"):
             v = getattr(self, name)
@@ -496,8 +471,13 @@ class BayesianJFA(_JFABase):
         if self.ard not in ("shared", "output"):
             raise ValueError(f"ard must be 'shared' or 'output', got {self.ard!r}")
 
-    def _hyper(self, fixed_x: bool) -> tuple:
+    def _hyper(self, fixed_x: bool) -> jb.Hyper:
         floors = (float(self.noise_floor), fixed_x, float(self.noise_y_floor))
         if self.ard == "shared":  # Q(alpha_m) sees two loadings; -1: no separate prior of w_x
-            return (True, float(self.a0) + 1.0, float(self.b0), *floors, -1.0)
-        return (True, float(self.a0) + 0.5, float(self.b0), *floors, _OUTPUT_ARD_WX_PRECISION)
+            return jb.Hyper(True, float(self.a0) + 1.0, float(self.b0), *floors, -1.0)
+        return jb.Hyper(
+            True, float(self.a0) + 0.5, float(self.b0), *floors, _OUTPUT_ARD_WX_PRECISION
+        )
+
+    def _method(self) -> str:
+        return "newton" if self.accelerate else "em"

@@ -1,0 +1,238 @@
+"""The (Bayesian) JFA fit as tensor ops: identities of the bound, one answer whatever the
+chunking or batching, and the closed form of maximum likelihood."""
+
+import math
+
+import pytest
+import torch
+
+from torchjfa.estimators import JFA, BayesianJFA
+from torchjfa.estimators import _jfa_bound as jb
+from torchjfa.estimators import _jfa_fit as jf
+from torchjfa.estimators import _jfa_newton as jn
+from torchjfa.stats import Moments
+
+F64 = torch.float64
+
+
+def _data(n, d, *, seed, n_irrelevant=0, psx=0.5, redundant=False):
+    """x = t + noise (one column a noisy copy of another if ``redundant``), y = sum b t + noise."""
+    g = torch.Generator().manual_seed(seed)
+    b = torch.linspace(1.0, 2.0, d, dtype=F64)
+    b[d - n_irrelevant :] = 0.0
+    t = torch.randn(n, d, generator=g, dtype=F64)
+    if redundant:
+        t[:, -1] = t[:, 0] + 0.1 * torch.randn(n, generator=g, dtype=F64)
+    X = t + math.sqrt(psx) * torch.randn(n, d, generator=g, dtype=F64) + 1.0
+    y = t @ b + 0.5 * torch.randn(n, generator=g, dtype=F64) - 2.0
+    return X, y
+
+
+def _standardised(X, y):
+    Xc, yc = X - X.mean(0), y - y.mean()
+    sx, sy = (Xc**2).mean(0).sqrt(), (yc**2).mean().sqrt()
+    Xs, ys = Xc / sx, yc / sy
+    n = torch.tensor(float(X.shape[0]), dtype=F64)
+    return jb.Stats(Xs.T @ Xs, Xs.T @ ys, ys @ ys, n)
+
+
+def _hyper(ard, fixed_x):
+    if ard == "shared":
+        return jb.Hyper(True, 1.0 + 1e-8, 1e-8, 1e-6, fixed_x, 1e-3, -1.0)
+    return jb.Hyper(True, 0.5 + 1e-8, 1e-8, 1e-6, fixed_x, 1e-3, 1e-8)
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(ard, fixed_x):
+    X, y = _data(300, 4, seed=0, n_irrelevant=1)
+    S = _standardised(X, y)
+    hp = _hyper(ard, fixed_x)
+    psx = torch.full((4,), 0.3, dtype=F64) if fixed_x else None
+    st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
+    for _ in range(6):
+        es, R, c, S_ee, L = jb.estep(S, st, psy, hp)
+        # two code paths, one bound: the E-step's (Q(z, t) explicit) and the collapsed one
+        full = L + jb.bound_const(S.n, 4, hp)
+        reduced = jb.reduced_bound(S, *st[[0, 1, 2, 3, 5, 6]].unbind(0), psy, hp)
+        assert float(reduced) == pytest.approx(float(full), rel=1e-13)
+        torch.testing.assert_close(jb.predictor(st), es[0], rtol=1e-12, atol=1e-14)
+        st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+    # the structured gradient and Hessian of the Newton optimiser against plain autograd
+    theta = jf._pack(st, psy, hp)
+    pc = st[jb.PX][None]
+    batch = jb.Stats(*(t[None] for t in S))
+    cv = jn.derivatives(theta[None], batch, pc, hp)
+    g, H = cv.g, jn.dense_hessian(cv)
+
+    def f(th):
+        return jf._theta_bound(th[None], *batch, pc, hp)[0]
+
+    g_ref = torch.func.grad(f)(theta)
+    H_ref = torch.autograd.functional.hessian(f, theta)
+    torch.testing.assert_close(g[0], g_ref, rtol=1e-12, atol=1e-12 * float(g_ref.abs().max()))
+    torch.testing.assert_close(H[0], H_ref, rtol=1e-12, atol=1e-12 * float(H_ref.abs().max()))
+
+
+VARIANTS = {
+    "seed": {},
+    "noise_informed": {"input_noise": True},
+    "output_ard": {"ard": "output"},
+    "output_ard_noise_informed": {"ard": "output", "input_noise": True},
+}
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_any_chunking_gives_one_answer_at_default_settings(variant):
+    """fit(X, y) and fit_moments of several chunkings: 1e-8 relative (round-off of the sums
+    only: the Newton optimiser converges quadratically to one optimum)."""
+    n, d = 3000, 8
+    X, y = _data(n, d, seed=3, n_irrelevant=3, redundant=True)
+    kw = dict(VARIANTS[variant])
+    if kw.pop("input_noise", False):
+        kw["input_noise"] = torch.full((d,), 0.5, dtype=F64)
+    whole = BayesianJFA(**kw).fit(X, y)
+    assert whole.converged_ and whole.n_iter_ < 200
+    fits = [BayesianJFA(**kw).fit_moments(Moments.from_data(X, y))]
+    for size in (1000, 64):
+        chunks = [Moments.from_data(X[a : a + size], y[a : a + size]) for a in range(0, n, size)]
+        fits.append(BayesianJFA(**kw).fit_moments(chunks))
+    reversed_rows = Moments.from_data(X.flip(0), y.flip(0))  # another order of the sums
+    fits.append(BayesianJFA(**kw).fit_moments(reversed_rows))
+    for other in fits:
+        assert other.converged_
+        for key in ("coef_", "coef_noisy_", "noise_x_", "noise_z_", "noise_y_"):
+            ref = getattr(whole, key)
+            torch.testing.assert_close(
+                getattr(other, key),
+                ref,
+                rtol=1e-8,
+                atol=1e-8 * float(ref.abs().max()),
+                msg=key,
+            )
+        assert float(other.lower_bound_[-1]) == pytest.approx(
+            float(whole.lower_bound_[-1]), rel=1e-8
+        )
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_a_batch_of_problems_gives_the_single_fits(ard, fixed_x):
+    hp = _hyper(ard, fixed_x)
+    problems = [_data(400 + 100 * i, 5, seed=10 + i, n_irrelevant=i % 3) for i in range(4)]
+    stats = [_standardised(X, y) for X, y in problems]
+    noise = [torch.full((5,), 0.3 + 0.05 * i, dtype=F64) for i in range(4)] if fixed_x else None
+    kw = dict(method="newton", max_iter=500, tol=1e-12, coef_tol=1e-9)
+    singles = [
+        jf.fit(S, None if noise is None else noise[i], hp, **kw) for i, S in enumerate(stats)
+    ]
+    batch = jb.Stats(*(torch.stack(t).reshape(2, 2, *t[0].shape) for t in zip(*stats, strict=True)))
+    psx = None if noise is None else torch.stack(noise).reshape(2, 2, 5)
+    res = jf.fit(batch, psx, hp, **kw)
+    assert res.st.shape == (2, 2, 7, 5) and res.n_iter.shape == (2, 2)
+    for i, one in enumerate(singles):
+        j = divmod(i, 2)
+        assert int(one.reason) == 1 and int(res.reason[j]) == 1
+        torch.testing.assert_close(res.st[j], one.st, rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(res.psy[j], one.psy, rtol=1e-10, atol=0)
+        last = res.history[j][int(res.n_iter[j]) - 1]
+        assert float(last) == pytest.approx(float(one.history[-1]), rel=1e-12)
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+def test_newton_reaches_at_least_plain_ems_bound_at_a_stationary_point(variant):
+    X, y = _data(1000, 6, seed=5, n_irrelevant=2, redundant=True)
+    kw = dict(VARIANTS[variant])
+    if kw.pop("input_noise", False):
+        kw["input_noise"] = torch.full((6,), 0.5, dtype=F64)
+    newton = BayesianJFA(**kw).fit(X, y)
+    em = BayesianJFA(accelerate=False, max_iter=3000, **kw).fit(X, y)
+    assert newton.converged_ and newton.n_iter_ < 100
+    L = newton.lower_bound_
+    assert float(L.diff().min()) >= 0.0  # every kept step raised the bound
+    assert float(L[-1]) >= float(em.lower_bound_[-1]) - 1e-9 * abs(float(L[-1]))
+    # the noisy-input predictor is where EM heads (it is identified): agree to EM's accuracy
+    torch.testing.assert_close(newton.coef_noisy_, em.coef_noisy_, rtol=0, atol=2e-2)
+
+
+def test_ml_closed_form_is_the_likelihoods_maximum():
+    """JFA's closed form: E[y | x] is OLS, and no EM state has a higher likelihood."""
+    X, y = _data(800, 5, seed=2, n_irrelevant=1)
+    est = JFA().fit(X, y)
+    A = torch.cat([X, torch.ones(800, 1, dtype=F64)], 1)
+    ols = torch.linalg.lstsq(A, y[:, None]).solution[:, 0]
+    torch.testing.assert_close(est.coef_noisy_, ols[:5], rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(est.intercept_noisy_, ols[5], rtol=1e-10, atol=1e-12)
+    assert est.n_iter_ == 2 and est.converged_
+    # the likelihood of (x, y): independent N(0, v_m) inputs, y | x ~ N(k^T x, c)
+    Xc, yc = X - X.mean(0), y - y.mean()
+    v = (Xc**2).mean(0)
+    rss = ((yc - Xc @ ols[:5]) ** 2).sum()
+    ll = -0.5 * 800 * (torch.log(2 * math.pi * v).sum() + 5) - 0.5 * 800 * (
+        math.log(2 * math.pi * float(rss) / 800) + 1
+    )
+    assert float(est.lower_bound_[-1]) == pytest.approx(float(ll), rel=1e-12)
+    em = JFA(accelerate=False, max_iter=1000, tol=0.0, coef_tol=0.0).fit(X, y)
+    assert float(em.lower_bound_.max()) <= float(est.lower_bound_[-1]) + 1e-9 * abs(float(ll))
+    # with the input noise known, the closed form de-attenuates OLS column by column (where
+    # RSS / N leaves room for the noise the loadings carry into y; with the true 0.5 this
+    # sample does not, the optimum is on the floors and plain EM fits it)
+    noise = torch.full((5,), 0.3, dtype=F64)
+    known = JFA(input_noise=noise).fit(X, y)
+    assert known.n_iter_ == 2 and known.converged_
+    torch.testing.assert_close(known.coef_, ols[:5] * v / (v - noise), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(known.noise_x_, noise)
+
+
+def _dense_newton_step(theta, g, H, lam, lb):
+    """The damped Newton step through the dense P x P matrix (the reference)."""
+    free = ~((theta <= lb) & (g <= 0))
+    M = -H * (free[..., :, None] & free[..., None, :])
+    diag = torch.diagonal(M, dim1=-2, dim2=-1)
+    scale = diag.abs().amax(-1, keepdim=True)
+    damp = torch.where(free, diag.abs().clamp_min(1e-12 * scale), 1.0)
+    M = M + torch.diag_embed(torch.where(free, lam[..., None] * damp, 1.0))
+    chol, info = torch.linalg.cholesky_ex(M)
+    delta = torch.cholesky_solve((g * free)[..., None], chol)[..., 0]
+    return delta, info == 0
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
+    """The per-input blocks + Woodbury solve against a dense Cholesky of -H + lam diag|H|:
+    the same step, and the same verdict on positive definiteness wherever the block part is
+    positive definite (elsewhere the structured step is refused), with coordinates held at
+    their bounds, over damping from 1e-6 (often indefinite) to 1e2."""
+    d = 5
+    hp = _hyper(ard, fixed_x)
+    verdicts = set()
+    for seed in range(3):
+        X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
+        S = _standardised(X, y)
+        psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
+        st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
+        for it in range(4):
+            es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
+            st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+            theta = jf._pack(st, psy, hp)[None]
+            batch = jb.Stats(*(t[None] for t in S))
+            cv = jn.derivatives(theta, batch, st[jb.PX][None], hp)
+            H = jn.dense_hessian(cv)
+            # hold a few coordinates: the bound at theta where the gradient points below it
+            lb = torch.where(
+                (cv.g <= 0) & (torch.arange(theta.shape[-1]) % 3 == it % 3), theta, -torch.inf
+            )[0]
+            for lam in (1e-6, 1e-3, 1.0, 1e2):
+                lam_t = torch.full((1,), lam, dtype=F64)
+                trial, ok, gain, _ = jn.newton_step(theta, cv, lam_t, lb)
+                delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb)
+                A, a_psy = jn.block_part(theta, cv, lam_t, lb)[:2]
+                blocks_pd = bool((torch.linalg.eigvalsh(A) > 0).all() & (a_psy > 0).all())
+                assert bool(ok) == (bool(ok_ref) and blocks_pd)
+                verdicts.add((bool(ok), bool(ok_ref)))
+                if bool(ok):
+                    ref = torch.maximum(theta + delta, lb)
+                    scale = float((ref - theta).abs().max())
+                    torch.testing.assert_close(trial, ref, rtol=1e-9, atol=1e-9 * scale)
+    assert {(True, True), (False, False)} <= verdicts  # both verdicts were tested

@@ -1,0 +1,430 @@
+"""Fitting (Bayesian) JFA regression from moments: plain EM, a monotone Newton optimiser of the
+bound, and the closed form of maximum-likelihood JFA.
+
+Tensor functions for any leading batch shape of problems (``_jfa_bound.py`` has the model and
+the state); `fit` is the entry point. Three methods:
+
+- ``"em"``: the plain (variational) EM sweeps of ``docs/bayesian-jfa.md``. Each iteration costs
+  one E-step; along the unidentified ``psi_x / w_x^2`` ridge and the pruning paths its rate is
+  ``1 - O(1/N)`` (``docs/bayesian-jfa-fitting.md``), so it crawls. Kept as the reference.
+- ``"newton"``: Levenberg-Marquardt-damped Newton steps on the bound with Q(z, t) and Q(alpha)
+  optimised out (`_jfa_bound.reduced_bound`), in the coordinates ``<w_z>, <w_x>, log V_z, log V_x,
+  log psi_z, log psi_x, log psi_y`` (the floors as bounds of a projected step), with the exact
+  Hessian in factored form, solved through its structure (``_jfa_newton.py``). When Newton has
+  converged, and also when its steps gain little (an input heading for the prior's zero, which
+  Newton approaches only geometrically in the log-variances), the prune move of the fitting note
+  is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm = v_m`` when
+  alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged); the improving prunes are
+  kept together (or the best one alone) and Newton resumes. Every step, damped or a prune, is kept only if the bound does not fall, so the recorded
+  bound never decreases; near the optimum the steps converge quadratically, so the answer does not
+  depend on the path to it (the chunking of the data, a batch or a single fit) beyond round-off.
+- ``"closed"`` (maximum likelihood only): the likelihood depends on the state only through
+  each input's variance ``v = diag(X^T X) / N``, the predictor ``k`` (OLS) and the residual
+  variance ``c = RSS / N``, so its maximum is known; the state returned is one point of the
+  flat ridge of states with those ``(v, k, c)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from .._threads import single_thread
+from . import _jfa_bound as jb
+from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
+from ._jfa_newton import derivatives, newton_step
+
+REASONS = ("max_iter", "bound", "coef")
+_LM_START = 1e-3  # Levenberg-Marquardt damping, relative to the Hessian's diagonal
+_LM_MAX = 1e12
+# the prune move is tried at each convergence of Newton, and also after a kept Newton step that
+# gained at most _PRUNE_GAIN nats per sample, from the _PRUNE_WARM-th iteration on and at most
+# once in _PRUNE_EVERY Newton iterations (docs/benchmarks.md: what each schedule cost)
+_PRUNE_WARM = 5
+_PRUNE_EVERY = 3
+_PRUNE_GAIN = 1e-3
+
+
+class Result(NamedTuple):
+    """A fit of a batch: ``st (*batch, 7, d)``, ``psy (*batch,)``, ``history (*batch, T)`` the
+    bound after each iteration (NaN after a problem stopped), ``n_iter``, ``reason`` (index in
+    `REASONS`), ``n_accepted`` (accepted Newton steps and prunes), ``n_estep`` (E-step
+    equivalents, the cost in ``d x d`` mat-vecs: one per bound evaluation and per gradient
+    and Hessian, ``(d + 1)^3 / (6 d^2)`` per Newton solve (its Cholesky's flops over a
+    mat-vec's), 3 per prune trial), all ``(*batch,)`` int64."""
+
+    st: torch.Tensor
+    psy: torch.Tensor
+    history: torch.Tensor
+    n_iter: torch.Tensor
+    reason: torch.Tensor
+    n_accepted: torch.Tensor
+    n_estep: torch.Tensor
+
+
+def initial_state(S: Stats, psx_fixed: torch.Tensor | None, hp: Hyper):
+    """The note's initialisation in standardised units: ``psi_x = 1/2`` (or the given noise),
+    ``<w_x> = sqrt(1 - psi_x)``, ``<w_z> = cov(x, y) / <w_x>``, the leftover variance of y split
+    equally between psi_y and sum psi_z, Q(alpha) updated once. Returns ``(st, psy)``."""
+    xy, n = S.xy, S.n[..., None]
+    d = xy.shape[-1]
+    if psx_fixed is None:
+        psx = torch.full_like(xy, 0.5)
+    else:
+        psx = psx_fixed.clamp_min(hp.floor)
+    mx = torch.sqrt((1.0 - psx).clamp_min(0.01))
+    mz = (xy / n) / mx
+    # when the w_z above already explain more than var(y) (correlated inputs), keep 1% of it
+    left = (1.0 - (mz * mz).sum(-1)).clamp_min(0.01)
+    zero = torch.zeros_like(xy)
+    st = torch.stack([mz, mx, zero, zero, zero, (0.5 * left / d)[..., None].expand_as(xy), psx], -2)
+    st[..., PZ, :] = st[..., PZ, :].clamp_min(hp.floor)
+    if hp.bayes:
+        st[..., jb.B, :] = jb.optimal_rate(st, hp)
+    return st, (0.5 * left).clamp_min(hp.floor_y)
+
+
+def coef(st: torch.Tensor, hp: Hyper) -> torch.Tensor:
+    """Eq. (4): ``<w_z><w_x> / <w_x^2>`` (0, not 0/0, when pruned); ``w_z / w_x`` for ML."""
+    if hp.bayes:
+        return st[..., MZ, :] * st[..., MX, :] / (st[..., MX, :] ** 2 + st[..., VX, :])
+    return st[..., MZ, :] / st[..., MX, :]
+
+
+def _first_sweep(S: Stats, st, psy, hp: Hyper):
+    """One sweep from the initial state (whose variances are 0, so no bound there)."""
+    es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
+    return jb.update(S, es, R, c, S_ee, st, psy, hp)
+
+
+def fit(
+    S: Stats,
+    psx_fixed: torch.Tensor | None,
+    hp: Hyper,
+    *,
+    method: str,
+    max_iter: int,
+    tol: float,
+    coef_tol: float,
+    bar=None,
+) -> Result:
+    """Fit a batch of problems from standardised moments (see the module docstring).
+
+    Args:
+        S: ``xx (*batch, d, d)``, ``xy (*batch, d)``, ``yy, n (*batch,)``, every column of
+            ``X`` and ``y`` scaled to unit variance (``diag(xx) = n``).
+        psx_fixed: ``(*batch, d)`` psi_x to hold fixed (standardised), or None.
+        hp: the settings; ``hp.fixed_x`` must say whether ``psx_fixed`` is given.
+        method: ``"em"``, ``"newton"`` (Bayesian only) or ``"closed"`` (ML only).
+        max_iter: iteration cap. tol, coef_tol: the stopping rule (`run_em`, `run_newton`).
+        bar: an optional progress bar (``update(k)``, ``set_postfix``).
+    """
+    st, psy = _first_sweep(S, *initial_state(S, psx_fixed, hp), hp)
+    if method == "em":
+        return run_em(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol, bar=bar)
+    if method == "newton" and hp.bayes:
+        return run_newton(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol, bar=bar)
+    if method == "closed" and not hp.bayes:
+        return ml_closed_form(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol)
+    raise ValueError(f"no method {method!r} for {'Bayesian' if hp.bayes else 'ML'} JFA")
+
+
+def _int(like: torch.Tensor, value: int = 0) -> torch.Tensor:
+    return torch.full(like.shape, value, dtype=torch.int64, device=like.device)
+
+
+def run_em(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
+    """Plain (variational) EM sweeps from ``(st, psy)``, each problem until its rule holds.
+
+    A problem stops when its bound changes by at most ``tol * max(|L|, N)`` in a sweep
+    (``"bound"``), else when ``||delta coef|| <= coef_tol ||coef||`` (``"coef"``), or after
+    ``max_iter`` recorded bounds (the first is the bound at ``(st, psy)``).
+    """
+    const = jb.bound_const(S.n, S.xy.shape[-1], hp)
+    scale = S.n.clamp_min(1.0)
+    es, R, c, S_ee, L = jb.estep(S, st, psy, hp)
+    L = L + const
+    hist, cf = [L], coef(st, hp)
+    live = torch.ones_like(L, dtype=torch.bool)
+    reason, n_iter = _int(L), _int(L, 1)
+    while bool(live.any()) and len(hist) < max_iter:
+        st1, psy1 = jb.update(S, es, R, c, S_ee, st, psy, hp)
+        es1, R1, c1, S1, L1 = jb.estep(S, st1, psy1, hp)
+        L1 = L1 + const
+        cf1 = coef(st1, hp)
+        dL = (L1 - L).abs()
+        dc = torch.linalg.vector_norm(cf1 - cf, dim=-1)
+        on_bound = dL <= tol * torch.maximum(L1.abs(), scale)
+        on_coef = dc <= coef_tol * torch.linalg.vector_norm(cf1, dim=-1)
+        keep = live[..., None, None]
+        st, es = torch.where(keep, st1, st), torch.where(keep, es1, es)
+        psy, R, c = torch.where(live, psy1, psy), torch.where(live, R1, R), torch.where(live, c1, c)
+        S_ee, L, cf = torch.where(live, S1, S_ee), torch.where(live, L1, L), cf1
+        hist.append(torch.where(live, L1, torch.nan))
+        n_iter = n_iter + live.long()
+        reason = torch.where(live & on_bound, 1, torch.where(live & on_coef, 2, reason))
+        live = live & ~on_bound & ~on_coef
+        if bar is not None:
+            bar.update(1)
+    history = torch.stack(hist, -1)
+    return Result(st, psy, history, n_iter, reason, _int(L), n_iter + 1)
+
+
+# ---------------------------------------------------------------------- the Newton optimiser
+def _pack(st: torch.Tensor, psy: torch.Tensor, hp: Hyper) -> torch.Tensor:
+    """The free coordinates ``(*batch, P)``: ``<w_z>, <w_x>, log V_z, log V_x, log psi_z``,
+    ``log psi_x`` (unless fixed), each ``d`` long, then ``log psi_y``."""
+    rows = [st[..., MZ, :], st[..., MX, :]]
+    rows += [torch.log(st[..., r, :]) for r in (VZ, VX, PZ) + (() if hp.fixed_x else (PX,))]
+    return torch.cat(rows + [torch.log(psy)[..., None]], -1)
+
+
+def _unpack(theta: torch.Tensor, psx_c: torch.Tensor, hp: Hyper):
+    """Inverse of `_pack`: ``(mz, mx, vz, vx, psz, psx, psy)``; psi_x from ``psx_c`` if fixed."""
+    d = psx_c.shape[-1]
+    mz, mx = theta[..., :d], theta[..., d : 2 * d]
+    vz, vx, psz = (torch.exp(theta[..., i * d : (i + 1) * d]) for i in (2, 3, 4))
+    psx = psx_c if hp.fixed_x else torch.exp(theta[..., 5 * d : 6 * d])
+    return mz, mx, vz, vx, psz, psx, torch.exp(theta[..., -1])
+
+
+def _state(theta: torch.Tensor, psx_c: torch.Tensor, hp: Hyper):
+    """``(st, psy)`` of packed coordinates, Q(alpha)'s rate at its optimum."""
+    mz, mx, vz, vx, psz, psx, psy = _unpack(theta, psx_c, hp)
+    st = torch.stack([mz, mx, vz, vx, torch.zeros_like(mz), psz, psx], -2)
+    st[..., jb.B, :] = jb.optimal_rate(st, hp)
+    return st, psy
+
+
+def _theta_bound(theta, xx, xy, yy, n, psx_c, hp: Hyper) -> torch.Tensor:
+    return jb.reduced_bound(Stats(xx, xy, yy, n), *_unpack(theta, psx_c, hp), hp)
+
+
+def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
+    """The prune move on every input (module docstring): ``(theta_trial, L_trial, any)``.
+
+    Each candidate keeps ``v``, ``tau`` and ``c``, so its gain is the change of ``S_ee`` and of
+    its own KL terms; the candidates that gain more than ``thr`` are tried together and the
+    best alone, and the better of the two is returned (``any``: some candidate gained).
+    """
+    mz, mx, vz, vx, psz, psx, psy = _unpack(theta, psx_c, hp)
+    tau = 1.0 + vz / psz + vx / psx
+    v = mx * mx / tau + psx
+    k = mz * mx / (tau * v)
+    q = psz + mz * mz * psx / (tau * v)
+    c = psy + q.sum(-1)
+    s_xe = S.xy - (S.xx @ k[..., None])[..., 0]
+    both = hp.shared and not hp.fixed_x  # prune w_x too (psi_x takes v), else w_z alone
+    zero = torch.zeros_like(mz)
+    new = {"mz": zero, "psz": q, "vz": vz * q / psz}
+    new.update(
+        {"mx": zero, "psx": v, "vx": vx * v / psx} if both else {"mx": mx, "psx": psx, "vx": vx}
+    )
+    gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c[..., None])
+    gain = gain + jb.kl_terms(new["mz"], new["mx"], new["vz"], new["vx"], hp)
+    gain = gain - jb.kl_terms(mz, mx, vz, vx, hp)
+    good = gain > thr[..., None]
+    best = torch.nn.functional.one_hot(gain.argmax(-1), gain.shape[-1]).bool() & good
+    trials, bounds = [], []
+    for pick in (good, best):
+        cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
+        cols = {key: torch.where(pick, new[key], val) for key, val in cols.items()}
+        st = torch.stack([cols[r] for r in ("mz", "mx", "vz", "vx", "psz", "psx")], -2)
+        st = torch.cat([st[..., :4, :], torch.zeros_like(st[..., :1, :]), st[..., 4:, :]], -2)
+        th = _pack(st, psy, hp)
+        trials.append(th)
+        bounds.append(_theta_bound(th, *S, psx_c, hp))
+    first = bounds[0] >= bounds[1]
+    return (
+        torch.where(first[..., None], trials[0], trials[1]),
+        torch.where(first, bounds[0], bounds[1]),
+        good.any(-1),
+    )
+
+
+def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
+    """`_run_newton` on one thread (`torchjfa._threads.single_thread`): the optimiser's kernels
+    are small (``r x r`` blocks, ``(d + 1) x (d + 1)`` matrices); on a busy 2-core machine,
+    MKL's two threads took 1.9 s of Cholesky calls in a d = 8 fit that one thread does in
+    0.01 s."""
+    with single_thread():
+        return _run_newton(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol, bar=bar)
+
+
+def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
+    """The monotone Newton optimiser with prune moves (module docstring) from ``(st, psy)``.
+
+    An iteration is one damped Newton trial or one prune trial, and the bound after it is
+    recorded (the first record is the bound at ``(st, psy)``); a trial is kept only if the
+    bound rises. Newton has converged when a kept step changes the bound by at most
+    ``tol * max(|L|, N)`` and no coordinate by more than ``coef_tol`` (means in standardised
+    units, log-variances), or when the next step's first-order gain is at round-off level, or
+    when no damping finds an ascent; then the prune trial runs, and the problem stops
+    (``"bound"``) when no prune gains. A prune trial also runs, on the schedule of
+    `_PRUNE_GAIN`, after a kept step that gained little; when it finds nothing, Newton goes on. With ``tol = coef_tol = 0`` it runs ``max_iter``
+    iterations: once a whole cycle left the state as it was (a fixed point of the iteration),
+    the remaining ones repeat it and are recorded without being recomputed.
+    """
+    batch, d = S.xy.shape[:-1], S.xy.shape[-1]
+    flat = Stats(*(t.reshape(-1, *t.shape[len(batch) :]) for t in S))
+    psx_c = st[..., PX, :].reshape(-1, d)
+    theta = _pack(st.reshape(-1, 7, d), psy.reshape(-1), hp)
+    B, P = theta.shape
+    lb = torch.full((P,), -torch.inf, dtype=theta.dtype, device=theta.device)
+    lb[4 * d : (5 if hp.fixed_x else 6) * d] = torch.log(torch.tensor(hp.floor))
+    lb[-1] = torch.log(torch.tensor(hp.floor_y))
+    lb = torch.minimum(lb, theta)  # the start is feasible (floors are clamps of the updates)
+    stops = tol > 0 or coef_tol > 0
+    scale = flat.n.clamp_min(1.0)
+    L = _theta_bound(theta, *flat, psx_c, hp)
+    cv = None
+    stale = torch.ones(B, dtype=torch.bool, device=theta.device)
+    lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
+    live, settled, fixed = torch.ones_like(stale), torch.zeros_like(stale), torch.zeros_like(stale)
+    forced = torch.zeros_like(stale)  # the coming prune trial is a scheduled one, not a stop test
+    since = _int(L)  # Newton iterations since the last prune trial
+    reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
+    solve_cost = math.ceil((d + 1) ** 3 / (6 * d * d))
+    hist = [L]
+    while bool(live.any()) and len(hist) < max_iter:
+        was_live = live
+        newton, pruning = live & ~settled, live & settled
+        need = newton & stale
+        if bool(need.any()):
+            idx = need.nonzero()[:, 0]
+            sub = Stats(*(t[idx] for t in flat))
+            new = derivatives(theta[idx], sub, psx_c[idx], hp)
+            if cv is None:  # the first iteration differentiates every problem
+                cv = type(new)(*(t.contiguous() for t in new))
+            else:
+                for kept, fresh in zip(cv, new, strict=True):
+                    kept[idx] = fresh
+            stale = stale & ~need
+            n_estep = n_estep + need.long()
+        thr = tol * torch.maximum(L.abs(), scale)
+        th_t, L_t = theta, L
+        accept = torch.zeros_like(live)
+        tiny = torch.zeros_like(live)
+        if bool(newton.any()):
+            th_n, ok, gain, pred = newton_step(theta, cv, lam, lb)
+            n_estep = n_estep + newton.long() * solve_cost
+            L_n = _theta_bound(th_n, *flat, psx_c, hp)
+            tiny = newton & ok & (gain <= 1e-15 * torch.maximum(L.abs(), scale))
+            accept = newton & ok & ~tiny & (L_n > L)  # NaN fails
+            th_t = torch.where(newton[..., None], th_n, th_t)
+            L_t = torch.where(newton, L_n, L_t)
+            n_estep = n_estep + newton.long()
+        found = torch.zeros_like(live)
+        if bool(pruning.any()):
+            th_p, L_p, found = _prune_trial(theta, flat, psx_c, hp, thr)
+            found = pruning & found & (L_p > L)
+            accept = accept | found
+            th_t = torch.where(pruning[..., None], th_p, th_t)
+            L_t = torch.where(pruning, L_p, L_t)
+            n_estep = n_estep + pruning.long() * 3
+        dL, dth = L_t - L, (th_t - theta).abs().amax(-1)
+        theta = torch.where(accept[..., None], th_t, theta)
+        L = torch.where(accept, L_t, L)
+        stale = stale | accept
+        n_acc = n_acc + accept.long()
+        # Levenberg-Marquardt damping, Nielsen's rule: less after a kept step the quadratic
+        # model predicted well, more (and faster each time) after a rejected one
+        rejected = newton & ~accept & ~tiny
+        if bool(newton.any()):
+            rho = dL / pred.clamp_min(1e-300)
+            down = torch.clamp(1.0 - (2.0 * rho - 1.0) ** 3, min=1.0 / 3.0, max=1.0)
+            lam = torch.where(newton & accept, (lam * down).clamp_min(1e-12), lam)
+        lam = torch.where(rejected, lam * nu, lam)
+        nu = torch.where(rejected, 2.0 * nu, torch.where(newton & accept, 2.0, nu))
+        converged = newton & accept & (dL <= thr) & (dth <= coef_tol) & stops
+        stuck = rejected & (lam > _LM_MAX)  # no damping finds an ascent: stationary
+        failed = pruning & ~found & ~forced  # no prune gains at a stationary point: the optimum
+        since = torch.where(pruning, 0, since + newton.long())
+        due = newton & ~(tiny | converged | stuck) & (n_iter >= _PRUNE_WARM)
+        due = due & (since >= _PRUNE_EVERY) & accept & (dL <= _PRUNE_GAIN * flat.n)
+        settled = (settled & ~pruning) | tiny | converged | stuck | due
+        forced = due
+        lam = torch.where(found | stuck | failed | tiny, _LM_START, lam)
+        if stops:
+            reason = torch.where(failed, 1, reason)
+        else:  # a cycle that ends in a failed prune left the state unchanged: a fixed point
+            fixed = fixed | failed
+        live = live & ~failed
+        n_iter = n_iter + was_live.long()
+        hist.append(torch.where(was_live, L, torch.nan))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(bound=f"{float(L.max()):.10g}")
+    if bool(fixed.any()):  # the remaining iterations of a fixed point repeat it
+        rest = max_iter - len(hist)
+        hist = [torch.where(fixed & torch.isnan(h), L, h) for h in hist]
+        hist += [torch.where(fixed, L, torch.nan)] * rest
+        n_iter = torch.where(fixed, max_iter, n_iter)
+        if bar is not None:
+            bar.update(rest)
+    st, psy = _state(theta, psx_c, hp)
+    out = Result(st, psy, torch.stack(hist, -1), n_iter, reason, n_acc, n_estep)
+    return Result(*(t.reshape(batch + t.shape[1:]) for t in out))
+
+
+# ------------------------------------------------------------ maximum likelihood, closed form
+def ml_closed_form(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol) -> Result:
+    """Maximum-likelihood JFA at its optimum ``v = diag(X^T X) / N``, ``k`` = OLS,
+    ``c = RSS / N`` (``docs/bayesian-jfa-fitting.md``), from the state after the first sweep.
+
+    The point returned on the flat ridge of states with those ``(v, k, c)``: the noise share
+    ``r = psi_x / v`` is the given one (psi_x fixed) or 1/2 (the initialisation's), lowered
+    where the floors need it; of ``c``, what the loadings do not explain is split equally
+    between psi_y and sum psi_z. Two bounds are recorded: at the first sweep and at the
+    optimum. Problems whose optimum the floors or a fixed psi_x at or above a column's
+    variance make unreachable are fitted by plain EM instead (`run_em`).
+    """
+    d = S.xy.shape[-1]
+    es, R, c0, S0, L0 = jb.estep(S, st, psy, hp)
+    L0 = L0 + jb.bound_const(S.n, d, hp)
+    n = S.n[..., None]
+    v = S.dg / n
+    evals, evecs = torch.linalg.eigh(S.xx)  # k = OLS, the minimum-norm one if X^T X is singular
+    cut = evals.amax(-1, keepdim=True) * d * torch.finfo(evals.dtype).eps
+    inv = torch.where(evals > cut, 1.0 / evals, 0.0)
+    k = (evecs @ (inv * (evecs.mT @ S.xy[..., None])[..., 0])[..., None])[..., 0]
+    rss = S.yy - 2.0 * (k * S.xy).sum(-1) + (k * (S.xx @ k[..., None])[..., 0]).sum(-1)
+    c = rss.clamp_min(0.0) / S.n
+    need = max(hp.floor_y + d * hp.floor, 2 * d * hp.floor) * (1.0 + 1e-9)
+    K = (k * k * v).sum(-1)
+    if hp.fixed_x:
+        r = st[..., PX, :] / v
+    else:  # r / (1 - r) <= t keeps c - sum k^2 v r / (1 - r) >= need
+        t = ((c - need) / K.clamp_min(1e-300)).clamp_min(0.0)
+        r = torch.minimum(torch.full_like(v, 0.5), (t / (1.0 + t))[..., None])
+    ok = (r > 0).all(-1) & (r < 1).all(-1)
+    r = r.clamp(1e-300, 1.0 - 1e-12)
+    left = c - (k * k * v * r / (1.0 - r)).sum(-1)  # psi_y + sum psi_z
+    ok = ok & (left >= need)
+    psy1 = torch.maximum(0.5 * left, torch.full_like(left, hp.floor_y))
+    mx = torch.sqrt(v * (1.0 - r))
+    mz = k * v / mx
+    psz = ((left - psy1) / d)[..., None].expand_as(mz)
+    zero = torch.zeros_like(mz)
+    st1 = torch.stack([mz, mx, zero, zero, zero, psz, r * v], -2)
+    L1 = jb.reduced_bound(S, mz, mx, zero, zero, psz, r * v, psy1, hp)
+    ok = ok & (L1 >= L0)
+    two = _int(L0, 2)
+    out = Result(st1, psy1, torch.stack([L0, L1], -1), two, _int(L0, 1), _int(L0), two + 1)
+    if bool(ok.all()):
+        return out
+    em = run_em(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol)
+    T = max(2, em.history.shape[-1])
+    pad = [
+        torch.nn.functional.pad(h, (0, T - h.shape[-1]), value=torch.nan)
+        for h in (out.history, em.history)
+    ]
+    parts = [out._replace(history=pad[0]), em._replace(history=pad[1])]
+    return Result(
+        *(
+            torch.where(ok.reshape(ok.shape + (1,) * (a.ndim - ok.ndim)), a, b)
+            for a, b in zip(*parts, strict=True)
+        )
+    )
