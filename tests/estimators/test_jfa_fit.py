@@ -236,3 +236,57 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
                     scale = float((ref - theta).abs().max())
                     torch.testing.assert_close(trial, ref, rtol=1e-9, atol=1e-9 * scale)
     assert {(True, True), (False, False)} <= verdicts  # both verdicts were tested
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS) + ["ml"])
+def test_fit_batch_gives_each_problem_its_single_fit(variant):
+    """The public batched fit: problem by problem what fit_moments gives (1e-10), including a
+    problem with a constant column (fitted in a batch of its own active columns)."""
+    d = 6
+    kw = dict(VARIANTS.get(variant, {}))
+    if kw.pop("input_noise", False):
+        kw["input_noise"] = torch.full((d,), 0.4, dtype=F64)
+    make = (lambda: JFA(**kw)) if variant == "ml" else (lambda: BayesianJFA(**kw))
+    problems = []
+    for i in range(5):
+        X, y = _data(300 + 50 * i, d, seed=20 + i, n_irrelevant=i % 3, redundant=i == 2)
+        if i == 4:
+            X[:, 3] = 1.5  # constant: not an active column of this problem
+        problems.append(Moments.from_data(X, y))
+    template = make()
+    fits = template.fit_batch(problems)
+    assert not hasattr(template, "coef_")  # the template is not fitted
+    assert [type(f) for f in fits] == [type(template)] * 5
+    for problem, batched in zip(problems, fits, strict=True):
+        single = make().fit_moments(problem)
+        assert batched.n_iter_ == single.n_iter_ and batched.converged_
+        for key in ("coef_", "coef_noisy_", "noise_x_", "noise_y_", "lower_bound_"):
+            ref = getattr(single, key)
+            torch.testing.assert_close(
+                getattr(batched, key), ref, rtol=1e-10, atol=1e-12 * float(ref.abs().max())
+            )
+    assert bool(fits[4].active_[3]) is False and float(fits[4].coef_[3]) == 0.0
+
+
+def test_fit_batch_refuses_mixed_widths_and_nothing():
+    X, y = _data(200, 4, seed=0)
+    with pytest.raises(ValueError, match="one width"):
+        BayesianJFA().fit_batch([Moments.from_data(X, y), Moments.from_data(X[:, :3], y)])
+    with pytest.raises(ValueError, match="at least one problem"):
+        BayesianJFA().fit_batch([])
+
+
+def test_the_jackknife_of_bayesian_jfa_is_its_single_refits():
+    """The jackknife fits Bayesian JFA's K refits in one batch: the same spread as K refits."""
+    from torchjfa.estimators import jackknife
+    from torchjfa.estimators._jackknife import refit_without
+
+    X, y = _data(1200, 5, seed=7, n_irrelevant=1)
+    folds = [Moments.from_data(X[a : a + 200], y[a : a + 200]) for a in range(0, 1200, 200)]
+    est = BayesianJFA()
+    coefs, std = jackknife(est, folds)
+    singles = torch.stack([refit_without(est, folds, k)[0].coef_ for k in range(len(folds))])
+    torch.testing.assert_close(coefs, singles, rtol=1e-10, atol=1e-12)
+    K = len(folds)
+    ref = ((K - 1) / K * (singles - singles.mean(0)).pow(2).sum(0)).sqrt()
+    torch.testing.assert_close(std, ref, rtol=1e-9, atol=1e-12)

@@ -22,12 +22,18 @@ def refit_without(
     else on their sum. Returns ``(fitted copy, the remaining folds' summed Moments)``; the
     estimator itself is not modified."""
     rest = list(folds[:k]) + list(folds[k + 1 :])
-    total = sum(rest[1:], rest[0].copy())
+    total = refit_totals(folds, k)
     est = copy.deepcopy(estimator)
     if hasattr(est, "verbose"):
         est.verbose = False
     est.fit_moments(rest if est.needs_folds else total)
     return est, total
+
+
+def refit_totals(folds: Sequence[Moments], k: int) -> Moments:
+    """The sum of all folds but the ``k``-th (a new `Moments`)."""
+    rest = list(folds[:k]) + list(folds[k + 1 :])
+    return sum(rest[1:], rest[0].copy())
 
 
 def jackknife(
@@ -60,12 +66,20 @@ def jackknife(
     K = len(folds)
     if K < 2:
         raise ValueError(f"the jackknife needs at least 2 folds, got {K}")
-    coefs = []
-    with progress_bar(total=K, desc="jackknife", enabled=progress, unit="fit") as bar:
-        for k in range(K):
-            est, _ = refit_without(estimator, folds, k)
-            coefs.append(est.coef_.detach().to(torch.float64))
-            bar.update(1)
+    if hasattr(estimator, "fit_batch") and not estimator.needs_folds:
+        # the K refits in one batched call (JFA, BayesianJFA): the same fits, less overhead
+        quiet = copy.deepcopy(estimator)
+        if hasattr(quiet, "verbose"):
+            quiet.verbose = progress
+        totals = [refit_totals(folds, k) for k in range(K)]
+        coefs = [est.coef_.detach().to(torch.float64) for est in quiet.fit_batch(totals)]
+    else:
+        coefs = []
+        with progress_bar(total=K, desc="jackknife", enabled=progress, unit="fit") as bar:
+            for k in range(K):
+                est, _ = refit_without(estimator, folds, k)
+                coefs.append(est.coef_.detach().to(torch.float64))
+                bar.update(1)
     C = torch.stack(coefs)
     var = (K - 1) / K * (C - C.mean(0)).pow(2).sum(0)
     return C, var.sqrt()

@@ -22,6 +22,7 @@ second moments; the prior (or the starting point, for `JFA`) picks it. Pass ``in
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 
@@ -123,6 +124,59 @@ class _JFABase(LinearEstimator):
         Returns:
             ``self``.
         """
+        prep = self._prepare(moments)
+        res = self._run(prep[0], prep[1])
+        self._store(res, *prep[2:])
+        return self
+
+    def fit_batch(self, problems: Sequence[Moments | Sequence[Moments]]) -> list:
+        """Fit one copy of this estimator to each of several problems, in one batched call.
+
+        The problems' standardised statistics are stacked, ``(B, d, d)``, and fitted together
+        by the same tensor ops as `fit_moments` (the jackknife's blocks, cross-validation
+        folds, the joints of a robot, the trials of an experiment): problem by problem the
+        result is `fit_moments`'s, to round-off (the ops are batched, not changed), in a
+        fraction of the time of separate calls, whose cost is mostly per-operation overhead.
+        Problems whose active columns differ (a column constant in one of them) are fitted in
+        separate batches.
+
+        Args:
+            problems: a sequence of `Moments` (or of fold `Moments`, summed), all with the
+                same number of features.
+
+        Returns:
+            A list of fitted copies of ``self`` (same hyper-parameters, ``verbose`` kept), in
+            the order of ``problems``; ``self`` is not modified.
+        """
+        problems = list(problems)
+        if not problems:
+            raise ValueError("fit_batch needs at least one problem")
+        preps = [self._prepare(p) for p in problems]
+        widths = {int(prep[-1].n_features) for prep in preps}
+        if len(widths) > 1:
+            raise ValueError(
+                f"fit_batch needs problems of one width; got {sorted(widths)} features"
+            )
+        groups: dict[tuple, list[int]] = {}
+        for i, prep in enumerate(preps):
+            groups.setdefault(tuple(prep[2].tolist()), []).append(i)
+        fitted: list = [None] * len(problems)
+        for members in groups.values():
+            S = jb.Stats(
+                *(torch.stack(t) for t in zip(*(preps[i][0] for i in members), strict=True))
+            )
+            fixed = [preps[i][1] for i in members]
+            psx = None if fixed[0] is None else torch.stack(fixed)
+            res = self._run(S, psx)
+            for j, i in enumerate(members):
+                est = copy.deepcopy(self)
+                est._store(_jfa_fit.Result(*(t[j] for t in res)), *preps[i][2:])
+                fitted[i] = est
+        return fitted
+
+    def _prepare(self, moments: Moments | Sequence[Moments]):
+        """Check the settings and the statistics of one problem and standardise them:
+        ``(S, psx_fixed, active, sx, sy, m, total)`` (see `_store`)."""
         total, _ = as_folds(moments)
         if not float(total.n) > 0:
             raise ValueError("cannot fit on Moments with no samples (total weight 0)")
@@ -142,9 +196,7 @@ class _JFABase(LinearEstimator):
             _check_noise_below_variance(noise, active, sx * sx, self.fit_intercept)
         S = jb.Stats(sxx / torch.outer(sx, sx), sxy / (sx * sy), syy / (sy * sy), n)
         psx_fixed = None if noise is None else noise[active] / (sx * sx)
-        res = self._run(S, psx_fixed)
-        self._store(res, active, sx, sy, m, total)
-        return self
+        return S, psx_fixed, active, sx, sy, m, total
 
     def predict(self, X, *, noiseless: bool = False) -> torch.Tensor:
         """Predictions, shape ``(n,)``, in ``X``'s dtype.

@@ -392,7 +392,10 @@ def ml_closed_form(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol) -> 
     k = (evecs @ (inv * (evecs.mT @ S.xy[..., None])[..., 0])[..., None])[..., 0]
     rss = S.yy - 2.0 * (k * S.xy).sum(-1) + (k * (S.xx @ k[..., None])[..., 0]).sum(-1)
     c = rss.clamp_min(0.0) / S.n
-    need = max(hp.floor_y + d * hp.floor, 2 * d * hp.floor) * (1.0 + 1e-9)
+    # what psi_y + sum psi_z must leave above the floors; r aims 1e-9 inside it, so that the
+    # check below does not hang on round-off (a batch and a single fit round differently)
+    need0 = max(hp.floor_y + d * hp.floor, 2 * d * hp.floor)
+    need = need0 * (1.0 + 1e-9)
     K = (k * k * v).sum(-1)
     if hp.fixed_x:
         r = st[..., PX, :] / v
@@ -402,7 +405,7 @@ def ml_closed_form(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol) -> 
     ok = (r > 0).all(-1) & (r < 1).all(-1)
     r = r.clamp(1e-300, 1.0 - 1e-12)
     left = c - (k * k * v * r / (1.0 - r)).sum(-1)  # psi_y + sum psi_z
-    ok = ok & (left >= need)
+    ok = ok & (left >= need0)
     psy1 = torch.maximum(0.5 * left, torch.full_like(left, hp.floor_y))
     mx = torch.sqrt(v * (1.0 - r))
     mz = k * v / mx
