@@ -149,7 +149,9 @@ def test_newton_reaches_at_least_plain_ems_bound_at_a_stationary_point(variant):
     em = BayesianJFA(accelerate=False, max_iter=3000, **kw).fit(X, y)
     assert newton.converged_ and newton.n_iter_ < 100
     L = newton.lower_bound_
-    assert float(L.diff().min()) >= 0.0  # every kept step raised the bound
+    # every kept step raised the bound, or (a step below the bound's resolution) did not lower
+    # it by more than the bound's round-off
+    assert float(L.diff().min()) >= -jf._ROUNDOFF * float(L.abs().max())
     assert float(L[-1]) >= float(em.lower_bound_[-1]) - 1e-9 * abs(float(L[-1]))
     # the noisy-input predictor is where EM heads (it is identified): agree to EM's accuracy
     torch.testing.assert_close(newton.coef_noisy_, em.coef_noisy_, rtol=0, atol=2e-2)

@@ -39,6 +39,10 @@ from ._jfa_newton import derivatives, newton_step
 REASONS = ("max_iter", "bound", "coef")
 _LM_START = 1e-3  # Levenberg-Marquardt damping, relative to the Hessian's diagonal
 _LM_MAX = 1e12
+_LM_FLOOR = 1e-12
+_LM_POLISH = 1e-9  # a convergence at more damping than this is checked by a step at the floor
+_ROUNDOFF = 64 * 2.0**-52  # relative round-off of the bound (a sum of O(d) terms of size O(N))
+_SMALL_RUN = 5  # so many kept steps below the bound's resolution in a row end Newton's run
 # the prune move is tried at each convergence of Newton, and also after a kept Newton step that
 # gained at most _PRUNE_GAIN nats per sample, from the _PRUNE_WARM-th iteration on and at most
 # once in _PRUNE_EVERY Newton iterations (docs/benchmarks.md: what each schedule cost)
@@ -283,8 +287,10 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     stale = torch.ones(B, dtype=torch.bool, device=theta.device)
     lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
     live, settled, fixed = torch.ones_like(stale), torch.zeros_like(stale), torch.zeros_like(stale)
+    polished = torch.zeros_like(stale)  # the damping went to its floor since the last prune
     forced = torch.zeros_like(stale)  # the coming prune trial is a scheduled one, not a stop test
     since = _int(L)  # Newton iterations since the last prune trial
+    n_small = _int(L)  # consecutive kept steps below the bound's resolution
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
     solve_cost = math.ceil((d + 1) ** 3 / (6 * d * d))
     hist = [L]
@@ -303,16 +309,19 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
                     kept[idx] = fresh
             stale = stale & ~need
             n_estep = n_estep + need.long()
-        thr = tol * torch.maximum(L.abs(), scale)
+        level = torch.maximum(L.abs(), scale)
+        thr, roundoff = tol * level, _ROUNDOFF * level
         th_t, L_t = theta, L
         accept = torch.zeros_like(live)
-        tiny = torch.zeros_like(live)
+        small = torch.zeros_like(live)
         if bool(newton.any()):
             th_n, ok, gain, pred = newton_step(theta, cv, lam, lb)
             n_estep = n_estep + newton.long() * solve_cost
             L_n = _theta_bound(th_n, *flat, psx_c, hp)
-            tiny = newton & ok & (gain <= 1e-15 * torch.maximum(L.abs(), scale))
-            accept = newton & ok & ~tiny & (L_n > L)  # NaN fails
+            # a step whose first-order gain the bound cannot resolve is judged by its model:
+            # kept unless the bound falls by more than its round-off (NaN fails either way)
+            small = newton & ok & (gain <= roundoff)
+            accept = newton & ok & ((L_n > L) | (small & (L_n >= L - roundoff)))
             th_t = torch.where(newton[..., None], th_n, th_t)
             L_t = torch.where(newton, L_n, L_t)
             n_estep = n_estep + newton.long()
@@ -331,14 +340,22 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         n_acc = n_acc + accept.long()
         # Levenberg-Marquardt damping, Nielsen's rule: less after a kept step the quadratic
         # model predicted well, more (and faster each time) after a rejected one
-        rejected = newton & ~accept & ~tiny
+        rejected = newton & ~accept & ~small
         if bool(newton.any()):
             rho = dL / pred.clamp_min(1e-300)
             down = torch.clamp(1.0 - (2.0 * rho - 1.0) ** 3, min=1.0 / 3.0, max=1.0)
-            lam = torch.where(newton & accept, (lam * down).clamp_min(1e-12), lam)
+            lam = torch.where(newton & accept, (lam * down).clamp_min(_LM_FLOOR), lam)
         lam = torch.where(rejected, lam * nu, lam)
         nu = torch.where(rejected, 2.0 * nu, torch.where(newton & accept, 2.0, nu))
         converged = newton & accept & (dL <= thr) & (dth <= coef_tol) & stops
+        # damped steps are short along weakly curved directions (the psi_x / w_x^2 ridge):
+        # before a convergence counts, Newton runs on with the damping at its floor
+        polish = (converged | (small & accept)) & ~polished & (lam > _LM_POLISH)
+        lam = torch.where(polish, _LM_FLOOR, lam)
+        polished = polished | polish
+        converged = converged & ~polish
+        n_small = torch.where(newton, torch.where(small & accept, n_small + 1, 0), n_small)
+        tiny = (small & ~accept) | (n_small >= _SMALL_RUN)  # nothing left the bound can see
         stuck = rejected & (lam > _LM_MAX)  # no damping finds an ascent: stationary
         failed = pruning & ~found & ~forced  # no prune gains at a stationary point: the optimum
         since = torch.where(pruning, 0, since + newton.long())
@@ -347,6 +364,8 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         settled = (settled & ~pruning) | tiny | converged | stuck | due
         forced = due
         lam = torch.where(found | stuck | failed | tiny, _LM_START, lam)
+        polished = polished & ~found
+        n_small = torch.where(tiny, 0, n_small)
         if stops:
             reason = torch.where(failed, 1, reason)
         else:  # a cycle that ends in a failed prune left the state unchanged: a fixed point
