@@ -396,11 +396,13 @@ class BayesianJFA(_JFABase):
 
     Args:
         max_iter: iteration cap (one iteration = one Newton or prune trial, or one plain EM
-            sweep with ``accelerate=False``). The Newton optimiser converges in tens of
-            iterations; plain EM needs thousands, often more than any cap.
+            sweep with ``accelerate=False``). The Newton optimiser converges in tens to a few
+            hundred iterations (``docs/benchmarks.md``); plain EM needs thousands, often more
+            than any cap.
         tol: the Newton optimiser has converged when a kept step changes the lower bound by
-            at most ``tol * max(|L|, N)`` and no parameter by more than ``coef_tol``, or when
-            the next step's gain is at round-off; it stops when then no prune move gains. Plain
+            at most ``tol * max(|L|, N)`` and no parameter by more than ``coef_tol`` (checked
+            once more with the damping at its floor), or when its steps' gains stay below the
+            bound's round-off; it stops when then no prune move gains. Plain
             EM stops when the bound changes by at most ``tol * max(|L|, N)`` in a sweep.
             With ``tol = coef_tol = 0`` both run ``max_iter`` iterations.
         coef_tol: the largest change of a parameter in a converged Newton step (posterior means
@@ -467,7 +469,9 @@ class BayesianJFA(_JFABase):
             an irrelevant one; ``inf`` for constant columns.
         weights_x_, weights_z_: ``(d,)`` posterior means of the loadings, caller's units.
         lower_bound_: ``(n_iter_,)`` float64, the variational lower bound on ``log p(X, y)``
-            (caller's units, nats) after each iteration; non-decreasing.
+            (caller's units, nats) after each iteration; non-decreasing (a Newton step whose
+            gain is below the bound's round-off is kept unless the bound falls by more than
+            that round-off, 64 eps of ``max(|L|, N)``).
         n_iter_: iterations run. converged_: whether a tolerance stopped it. stop_reason_:
             ``"bound"``, ``"coef"`` or ``"max_iter"``.
         n_accelerated_: kept Newton steps and prunes. n_estep_: E-step equivalents (the cost

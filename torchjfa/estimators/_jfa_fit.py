@@ -315,9 +315,17 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         accept = torch.zeros_like(live)
         small = torch.zeros_like(live)
         if bool(newton.any()):
-            th_n, ok, gain, pred = newton_step(theta, cv, lam, lb)
+            # on the problems taking a Newton step only (the others wait or are done)
+            idx = newton.nonzero()[:, 0]
+            sub = Stats(*(t[idx] for t in flat))
+            cv_i = type(cv)(*(t[idx] for t in cv))
+            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam[idx], lb[idx])
+            th_n, L_n = theta.clone(), L.clone()
+            th_n[idx] = th_i
+            L_n[idx] = _theta_bound(th_i, *sub, psx_c[idx], hp)
+            ok, gain, pred = torch.zeros_like(live), torch.zeros_like(L), torch.zeros_like(L)
+            ok[idx], gain[idx], pred[idx] = ok_i, gain_i, pred_i
             n_estep = n_estep + newton.long() * solve_cost
-            L_n = _theta_bound(th_n, *flat, psx_c, hp)
             # a step whose first-order gain the bound cannot resolve is judged by its model:
             # kept unless the bound falls by more than its round-off (NaN fails either way)
             small = newton & ok & (gain <= roundoff)
@@ -327,7 +335,12 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             n_estep = n_estep + newton.long()
         found = torch.zeros_like(live)
         if bool(pruning.any()):
-            th_p, L_p, found = _prune_trial(theta, flat, psx_c, hp, thr)
+            idx = pruning.nonzero()[:, 0]
+            sub = Stats(*(t[idx] for t in flat))
+            th_i, L_i, found_i = _prune_trial(theta[idx], sub, psx_c[idx], hp, thr[idx])
+            th_p, L_p = theta.clone(), L.clone()
+            th_p[idx], L_p[idx] = th_i, L_i
+            found[idx] = found_i
             found = pruning & found & (L_p > L)
             accept = accept | found
             th_t = torch.where(pruning[..., None], th_p, th_t)

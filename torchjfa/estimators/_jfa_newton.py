@@ -176,15 +176,24 @@ def newton_step(theta, cv: Curvature, lam, lb):
     s = torch.sqrt(kkk.clamp_min(0.0))
     lc = torch.where(kkk > 0, kkc / torch.where(kkk > 0, s, 1.0), 0.0)
     lcc = torch.sqrt((kcc - (lc * lc).sum(-1)).clamp_min(0.0))
-    Lm = torch.diag_embed(torch.cat([s, lcc[:, None]], -1))
-    Lm[:, d, :d] = lc
+    # L = diag(sf) + e_d l^T (the arrowhead: l = (lc, 0)), so L^T W L and L x, L^T x cost O(d^2)
+    sf = torch.cat([s, lcc[:, None]], -1)  # (B, d + 1)
+    lv = torch.nn.functional.pad(lc, (0, 1))
     W = -_coupling(cv)
     W.diagonal(dim1=-2, dim2=-1)[:, :d] -= w_kk
-    C = Lm.mT @ W @ Lm
+    wd, wdd = W[:, :, d], W[:, d, d]
+    swd = sf * wd
+    C = sf[:, :, None] * W * sf[:, None, :]
+    C = C + swd[:, :, None] * lv[:, None, :] + lv[:, :, None] * swd[:, None, :]
+    C = C + wdd[:, None, None] * lv[:, :, None] * lv[:, None, :]
     C.diagonal(dim1=-2, dim2=-1).add_(1.0)
     chol_c, info_c = torch.linalg.cholesky_ex(C)
     Wb = (W @ b[..., None])[..., 0]
-    u = Wb - (W @ (Lm @ torch.cholesky_solve((Lm.mT @ Wb[..., None]), chol_c)))[..., 0]
+    ltw = sf * Wb + lv * Wb[:, d, None]  # L^T W b
+    x = torch.cholesky_solve(ltw[..., None], chol_c)[..., 0]
+    lx = sf * x
+    lx[:, d] += (lv * x).sum(-1)  # L x
+    u = Wb - (W @ lx[..., None])[..., 0]
     step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
     delta = torch.cat(
         [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
