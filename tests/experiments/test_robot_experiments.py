@@ -86,7 +86,7 @@ def test_noiseless_rigid_body_data_are_identified_exactly(tmp_path, monkeypatch)
     Bayesian JFA predict held-out MuJoCo torques to 1e-6 relative."""
     monkeypatch.chdir(tmp_path)
     exact_bjfa = {"noise_y_floor": 1e-12, "noise_floor": 1e-12, "tol": 1e-15, "coef_tol": 1e-12}
-    exact_bjfa["max_iter"] = 60000  # converges (coef_tol) after about 33,000 iterations
+    exact_bjfa["max_iter"] = 60000  # the Newton optimiser converges after about 850 iterations
     res = robots.run_robot(
         "head",
         n_samples=1680,
