@@ -271,6 +271,8 @@ class _JFABase(LinearEstimator):
             )
             if tick is not None:
                 tick.flush()
+                bar.total = bar.n  # converged before the cap: the bar ends full
+                bar.refresh()
         return res
 
     def _store(self, res: _jfa_fit.Result, active, sx, sy, m: Moments, total: Moments) -> None:
