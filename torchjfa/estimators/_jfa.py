@@ -413,7 +413,8 @@ class BayesianJFA(_JFABase):
             rate along the unidentified direction of eq. (4) is ``1 - O(1/N)``
             (``docs/bayesian-jfa-fitting.md``), so its answer moves with the iteration count
             and the chunking of the data; the Newton optimiser's converges quadratically and
-            agrees whatever the chunking, to round-off.
+            agrees whatever the chunking, to round-off, unless round-off early in the path
+            led to another optimum of the bound (seen on large redundant problems).
         a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (the note: 1e-8).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
             caller's units (squared units of each column), e.g. half the variance of the

@@ -8,16 +8,20 @@ the state); `fit` is the entry point. Three methods:
   one E-step; along the unidentified ``psi_x / w_x^2`` ridge and the pruning paths its rate is
   ``1 - O(1/N)`` (``docs/bayesian-jfa-fitting.md``), so it crawls. Kept as the reference.
 - ``"newton"``: Levenberg-Marquardt-damped Newton steps on the bound with Q(z, t) and Q(alpha)
-  optimised out (`_jfa_bound.reduced_bound`), in the coordinates ``<w_z>, <w_x>, log V_z, log V_x,
-  log psi_z, log psi_x, log psi_y`` (the floors as bounds of a projected step), with the exact
-  Hessian in factored form, solved through its structure (``_jfa_newton.py``). When Newton has
-  converged, and also when its steps gain little (an input heading for the prior's zero, which
-  Newton approaches only geometrically in the log-variances), the prune move of the fitting note
-  is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm = v_m`` when
-  alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged); the improving prunes are
-  kept together (or the best one alone) and Newton resumes. Every step, damped or a prune, is kept only if the bound does not fall, so the recorded
-  bound never decreases; near the optimum the steps converge quadratically, so the answer does not
-  depend on the path to it (the chunking of the data, a batch or a single fit) beyond round-off.
+  optimised out (`_jfa_bound.reduced_bound`), in the coordinates ``<w_z>, <w_x>, log V_z, log
+  V_x, log psi_z, log psi_x, log psi_y`` (the floors as bounds of a projected step), with the
+  exact Hessian in factored form, solved through its structure (``_jfa_newton.py``). When Newton
+  has converged, and also when its steps gain little (an input heading for the prior's zero,
+  which Newton approaches only geometrically in the log-variances), the prune move of the
+  fitting note is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm
+  = v_m`` when alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged); the
+  improving prunes are kept together (or the best one alone) and Newton resumes. Every step,
+  damped or a prune, is kept only if the bound does not fall, so the recorded bound never
+  decreases (beyond its round-off); near an optimum the steps converge quadratically, so the
+  answer does not depend on the path to it (the chunking of the data, a batch or a single fit)
+  beyond round-off. The bound has many optima, though: on large problems with redundant inputs,
+  round-off amplified near saddles early in the path can lead two chunkings to different ones
+  (``docs/benchmarks.md``).
 - ``"closed"`` (maximum likelihood only): the likelihood depends on the state only through
   each input's variance ``v = diag(X^T X) / N``, the predictor ``k`` (OLS) and the residual
   variance ``c = RSS / N``, so its maximum is known; the state returned is one point of the
