@@ -246,6 +246,37 @@ def test_candidates_are_scaled_exactly_into_the_joint_limits_on_the_dense_grid()
     assert 0.0 <= min(res.margins.values()) <= 2 * _design._EDGE
 
 
+def test_the_polish_moves_each_limits_target_by_its_worst_excess():
+    # update_shift: each limit's (column's) shift grows by the worst excess over its target
+    # (_SAFETY inside the limit) and shrinks, not below 0, by the worst room left; the
+    # penalty then aims that much further inside. Written out from the dense-grid states.
+    model = _model("head")
+    limits = limits_from_model(model, velocity=1.0)
+    q0 = 0.5 * (limits.position_low + limits.position_high)
+    V = base_directions(model, limits, generator=torch.Generator().manual_seed(0))
+    problem = _design._Design(model, limits, V, "d", None, None, period_grid(4.0, 60), q0, 0.25)
+    g = torch.Generator().manual_seed(4)
+    size = torch.linspace(0.05, 0.6, 7, dtype=torch.float64)[:, None]  # per joint
+    a_raw, b_raw = (size * torch.randn(7, 3, generator=g, dtype=torch.float64) for _ in range(2))
+    a, b = constrain_coefficients(a_raw, b_raw)
+    qd = fourier_states(problem.t_dense, problem.posture, a, b, 0.25)[1].numpy()
+    excess = np.abs(qd).max(0) / 1.0 - 1.0 + _design._SAFETY["velocity"]  # velocity limit 1
+    assert excess.max() > 0 > excess.min()  # some joints beyond, some inside
+    problem.update_shift(a_raw, b_raw)
+    np.testing.assert_allclose(problem.shift["velocity"].numpy(), np.maximum(excess, 0), atol=1e-12)
+    problem.update_shift(a_raw, b_raw)  # the same motion again: the shifts add up
+    np.testing.assert_allclose(problem.shift["velocity"].numpy(), np.maximum(2 * excess, 0),
+                               atol=1e-12)  # fmt: skip
+    # the penalty is the shifted one: zero for a motion inside the moved targets
+    _, viol = problem.evaluate(0.5 * a_raw, 0.5 * b_raw)
+    moved = {k: v + problem.shift[k] for k, v in viol.items()}
+    expected = sum(
+        (torch.relu(v + _design._SAFETY[k]) ** 2).mean(0).sum() for k, v in moved.items()
+    )
+    assert float(_design._penalty(viol, problem.shift)) == pytest.approx(float(expected), abs=0)
+    assert float(_design._penalty(viol, problem.shift)) > float(_design._penalty(viol, {}))
+
+
 def test_criteria_written_out():
     M = torch.diag(torch.tensor([4.0, 1.0, 0.25], dtype=torch.float64))
     assert float(criterion_value(M, "d")) == pytest.approx(-np.log(4 * 1 * 0.25) / 3, abs=1e-14)

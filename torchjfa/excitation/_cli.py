@@ -114,6 +114,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--polish-iter", type=int, default=200,
         help="d+condition: iterations per exponent of the condition number's polish",
     )  # fmt: skip
+    p.add_argument(
+        "--polish-starts", type=int, default=2,
+        help="d+condition: how many of the best D-optimal starts are polished (slower: ~1x each)",
+    )  # fmt: skip
     p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
@@ -202,6 +206,7 @@ def _design(args, model, limits, rate: float, posture):
         optimizer=args.optimizer,
         max_iter=args.max_iter,
         polish_iter=args.polish_iter,
+        polish_starts=args.polish_starts,
         seed=args.seed,
         progress=not args.quiet,
     )

@@ -15,19 +15,20 @@ et al. 1997; Gautier and Khalil 1992):
   of basis and of parameter units),
 * ``"condition"``: ``log cond(Y V) = log(lambda_max / lambda_min) / 2``, the condition number
   of the base regressor in the parameters' units (the one `trajectory_information` reports),
-* ``"d+condition"`` (default): D-optimal starts, then the best one polished on the condition
-  number (it keeps the D-optimum's low errors and lowers the condition number; the polish
-  runs longer than the starts, ``polish_iter``, and never returns a trajectory of higher
-  exact condition number than the start it polished),
+* ``"d+condition"`` (default): D-optimal starts, then the best ``polish_starts`` (two) polished
+  on the condition number (it keeps the D-optimum's low errors and lowers the condition
+  number; the polish runs longer than the starts, ``polish_iter``, and never returns a
+  trajectory of higher exact condition number than the starts it polished),
 * ``"e"``, E-optimality: ``-log lambda_min(M)``.
 
 `optimize_excitation` minimises the criterion over the coefficients of a `FourierTrajectory`
 on a coarse grid of one period with torch autograd (LBFGS or Adam, several random starts)
 while a quadratic penalty, raised over rounds, keeps the limits (`Limits`) with a small
-safety margin. The condition number, a nonsmooth ratio of extreme eigenvalues (LBFGS stalls
+safety margin (in the polish, each limit's target is moved after every round by what the
+round's optimum exceeded it by: `_Design.update_shift`). The condition number, a nonsmooth ratio of extreme eigenvalues (LBFGS stalls
 on it where they cluster), is optimised through its smooth bound `soft_condition` with the
-exponent p raised over rounds (``condition_p``; ``inf`` is the exact log condition number). The result is then checked on a grid 10x
-finer than the output rate and shrunk about the posture until it holds there
+exponent p raised over rounds (``condition_p``; ``inf`` is the exact log condition
+number). The result is then checked on a grid 10x finer than the output rate and shrunk about the posture until it holds there
 (`check_limits`), or a ``ValueError`` says which limit cannot be met.
 """
 
@@ -102,8 +103,13 @@ class ExcitationResult:
     seconds: float = 0.0
 
 
-def _penalty(viol: dict[str, torch.Tensor]) -> torch.Tensor:
-    return sum((torch.relu(v + _SAFETY[k]) ** 2).mean(0).sum() for k, v in viol.items())
+def _penalty(viol: dict[str, torch.Tensor], shift: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The limits' quadratic penalty: each sample's excess over its target, ``_SAFETY`` inside
+    the limit, moved further inside by the limit's ``shift`` (`_Design.update_shift`)."""
+    return sum(
+        (torch.relu(v + _SAFETY[k] + shift.get(k, 0.0)) ** 2).mean(0).sum()
+        for k, v in viol.items()
+    )
 
 
 def _largest_feasible_scale(model, scaled, limits, rate, *, high: float = 1.0, theta=None):
@@ -150,7 +156,7 @@ def optimize_excitation(
     rounds: tuple[float, ...] = (1e3,),
     condition_p: tuple[float, ...] = (2.0, 8.0, 32.0, 128.0),
     polish_iter: int = 200,
-    polish_starts: int = 1,
+    polish_starts: int = 2,
     seed: int | None = 0,
     generator: torch.Generator | None = None,
     progress: bool = False,
@@ -279,13 +285,16 @@ def optimize_excitation(
         for _, a_start, b_start in starts[:n_polish]:
             a_raw = a_start.clone().requires_grad_(True)
             b_raw = b_start.clone().requires_grad_(True)
+            problem.shift = {}  # each polish moves its own targets
             for p in polish:
                 problem.p = p
                 crit = _optimise_round(
                     problem, a_raw, b_raw, rounds[-1], optimizer, polish_iter, room
                 )
+                problem.update_shift(a_raw, b_raw)
                 bar.update(1)
                 bar.set_postfix(condition=f"{crit:.4g}")
+            problem.shift = {}
             problem.scale_into_joint_limits(a_raw, b_raw)
             key = _condition_key(problem, a_raw, b_raw)
             if key < best[0]:
@@ -377,7 +386,7 @@ def _worst_violation(problem, a_raw, b_raw) -> float:
 
 
 def _worst(viol: dict[str, torch.Tensor]) -> float:
-    return max(float(v.max()) for v in viol.values())
+    return max((float(v.max()) for v in viol.values()), default=-math.inf)
 
 
 def _posture(limits: Limits, posture, n: int) -> np.ndarray:
@@ -413,6 +422,8 @@ class _Design:
         self.posture = torch.as_tensor(q0, dtype=torch.float64)
         self.theta = model.nominal_theta
         self.p: float | None = None
+        #: per kind of limit, ``(m,)`` how much further inside than ``_SAFETY`` the penalty aims
+        self.shift: dict[str, torch.Tensor] = {}
 
     def states(self, a_raw, b_raw):
         a, b = constrain_coefficients(a_raw, b_raw)
@@ -433,25 +444,29 @@ class _Design:
         viol.update(constraint_violations(self.model, self.limits, *dense, kinds=JOINT_KINDS))
         return M, viol
 
+    def joint_usage(self, a, b) -> torch.Tensor:
+        """``(n,)`` per joint, the largest fraction of its joint limits (position: the room
+        between the posture and each end, less `_EDGE` of the range; velocity, acceleration:
+        the limit less `_EDGE` of it) that the motion of coefficients ``a``, ``b`` uses on the
+        dense grid (q - q0, qd and qdd are linear in the coefficients)."""
+        q, qd, qdd = fourier_states(self.t_dense, self.posture, a, b, self.f0)
+        lim = self.limits
+        lo, hi = (torch.as_tensor(x, dtype=q.dtype) for x in (lim.position_low, lim.position_high))
+        edge = _EDGE * (hi - lo)
+        d = q - self.posture
+        room = torch.where(d > 0, hi - edge - self.posture, self.posture - lo - edge)
+        usage = [d.abs() / room]
+        for x, bound in ((qd, lim.velocity), (qdd, lim.acceleration)):
+            bound = torch.as_tensor(bound, dtype=q.dtype)  # inf where unlimited: usage 0
+            usage.append(x.abs() / (bound * (1 - _EDGE)))
+        return torch.stack([u.amax(0) for u in usage]).amax(0)
+
     def joint_scale(self, a_raw, b_raw) -> float:
         """The largest s in [0, 1] for which ``s`` times the motion about the posture holds the
         joint limits on the dense grid, `_EDGE` inside them (closed form: q - q0, qd and qdd
         are linear in the coefficients)."""
         with torch.no_grad():
-            a, b = constrain_coefficients(a_raw, b_raw)
-            q, qd, qdd = fourier_states(self.t_dense, self.posture, a, b, self.f0)
-            lim = self.limits
-            lo, hi = (
-                torch.as_tensor(x, dtype=q.dtype) for x in (lim.position_low, lim.position_high)
-            )
-            edge = _EDGE * (hi - lo)
-            d = q - self.posture
-            room = torch.where(d > 0, hi - edge - self.posture, self.posture - lo - edge)
-            ratios = [room / d.abs()]
-            for x, bound in ((qd, lim.velocity), (qdd, lim.acceleration)):
-                bound = torch.as_tensor(bound, dtype=q.dtype)
-                ratios.append(bound * (1 - _EDGE) / x.abs())  # inf where unlimited or at rest
-            s = min(float(r.nan_to_num(nan=math.inf).min()) for r in ratios)
+            s = 1.0 / float(self.joint_usage(*constrain_coefficients(a_raw, b_raw)).max())
         return min(max(s, 0.0), 1.0)
 
     def scale_into_joint_limits(self, a_raw, b_raw) -> None:
@@ -470,7 +485,23 @@ class _Design:
             crit = soft_condition(M, self.p)
         else:
             crit = criterion_value(M, "d" if self.criterion == "d+condition" else self.criterion)
-        return crit + rho * _penalty(viol), crit
+        return crit + rho * _penalty(viol, self.shift), crit
+
+    def update_shift(self, a_raw, b_raw) -> None:
+        """Move each limit's target by what the motion exceeds it by (at its worst sample).
+
+        The quadratic penalty balances the criterion's pull a little outside its target (the
+        polish ended 1-2 % outside the joint limits on the head, which `joint_scale` then
+        took back from the whole motion). After each round each limit's (each column's)
+        ``shift`` grows by the worst excess over the target, or shrinks (not below 0) by the
+        worst room left, so the next round's penalty equilibrium sits at the target: the
+        adaptive targets of a method of multipliers, with one multiplier per limit.
+        """
+        with torch.no_grad():
+            _, viol = self.evaluate(a_raw, b_raw)
+            for k, v in viol.items():
+                old = self.shift.get(k, torch.zeros_like(v[0]))
+                self.shift[k] = (old + (v + _SAFETY[k]).amax(0)).clamp(min=0.0)
 
 
 def _optimise_round(problem: _Design, a_raw, b_raw, rho, optimizer, max_iter, room) -> float:
