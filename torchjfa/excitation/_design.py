@@ -107,8 +107,7 @@ def _penalty(viol: dict[str, torch.Tensor], shift: dict[str, torch.Tensor]) -> t
     """The limits' quadratic penalty: each sample's excess over its target, ``_SAFETY`` inside
     the limit, moved further inside by the limit's ``shift`` (`_Design.update_shift`)."""
     return sum(
-        (torch.relu(v + _SAFETY[k] + shift.get(k, 0.0)) ** 2).mean(0).sum()
-        for k, v in viol.items()
+        (torch.relu(v + _SAFETY[k] + shift.get(k, 0.0)) ** 2).mean(0).sum() for k, v in viol.items()
     )
 
 
