@@ -71,3 +71,6 @@ def test_bad_input_ends_with_one_line_and_status_2(traj_dir, tmp_path, capsys):
                  *SMOKE])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "violates" in err and "|torque|" in err and err.count("\n") == 1
+    code = main(["excite", "head", "--out", str(tmp_path / "t"), *SMOKE, "--polish-starts", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "polish_starts must be a positive int" in err and err.count("\n") == 1
