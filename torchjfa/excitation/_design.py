@@ -25,11 +25,12 @@ et al. 1997; Gautier and Khalil 1992):
 on a coarse grid of one period with torch autograd (LBFGS or Adam, several random starts)
 while a quadratic penalty, raised over rounds, keeps the limits (`Limits`) with a small
 safety margin (in the polish, each limit's target is moved after every round by what the
-round's optimum exceeded it by: `_Design.update_shift`). The condition number, a nonsmooth ratio of extreme eigenvalues (LBFGS stalls
-on it where they cluster), is optimised through its smooth bound `soft_condition` with the
-exponent p raised over rounds (``condition_p``; ``inf`` is the exact log condition
-number). The result is then checked on a grid 10x finer than the output rate and shrunk about the posture until it holds there
-(`check_limits`), or a ``ValueError`` says which limit cannot be met.
+round's optimum exceeded it by: `_Design.update_shift`). The condition number, a nonsmooth
+ratio of extreme eigenvalues (LBFGS stalls on it where they cluster), is optimised through
+its smooth bound `soft_condition` with the exponent p raised over rounds (``condition_p``;
+``inf`` is the exact log condition number). The result is then checked on a grid 10x finer
+than the output rate and shrunk about the posture until it holds there (`check_limits`), or
+a ``ValueError`` says which limit cannot be met.
 """
 
 from __future__ import annotations
@@ -454,7 +455,7 @@ class _Design:
         edge = _EDGE * (hi - lo)
         d = q - self.posture
         room = torch.where(d > 0, hi - edge - self.posture, self.posture - lo - edge)
-        usage = [d.abs() / room]
+        usage = [d.abs() / room.clamp_min(torch.finfo(q.dtype).tiny)]  # posture at the edge
         for x, bound in ((qd, lim.velocity), (qdd, lim.acceleration)):
             bound = torch.as_tensor(bound, dtype=q.dtype)  # inf where unlimited: usage 0
             usage.append(x.abs() / (bound * (1 - _EDGE)))
@@ -465,8 +466,8 @@ class _Design:
         joint limits on the dense grid, `_EDGE` inside them (closed form: q - q0, qd and qdd
         are linear in the coefficients)."""
         with torch.no_grad():
-            s = 1.0 / float(self.joint_usage(*constrain_coefficients(a_raw, b_raw)).max())
-        return min(max(s, 0.0), 1.0)
+            used = float(self.joint_usage(*constrain_coefficients(a_raw, b_raw)).max())
+        return 1.0 if used <= 1.0 else 1.0 / used  # at rest (used 0) or inside: 1
 
     def scale_into_joint_limits(self, a_raw, b_raw) -> None:
         """Scale the coefficients (in place) by `joint_scale`."""
