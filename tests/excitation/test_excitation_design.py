@@ -267,7 +267,7 @@ def test_the_polish_moves_each_limits_target_by_its_worst_excess():
     problem.update_shift(a_raw, b_raw)  # the same motion again: the shifts add up
     np.testing.assert_allclose(problem.shift["velocity"].numpy(), np.maximum(2 * excess, 0),
                                atol=1e-12)  # fmt: skip
-    # the penalty is the shifted one: zero for a motion inside the moved targets
+    # the penalty aims at the moved targets: each shift added to its limit's excess
     _, viol = problem.evaluate(0.5 * a_raw, 0.5 * b_raw)
     moved = {k: v + problem.shift[k] for k, v in viol.items()}
     expected = sum(

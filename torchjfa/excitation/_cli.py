@@ -116,7 +116,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument(
         "--polish-starts", type=int, default=2,
-        help="d+condition: how many of the best D-optimal starts are polished (slower: ~1x each)",
+        help="d+condition: how many of the best D-optimal starts are polished (each: one polish)",
     )  # fmt: skip
     p.add_argument("--grid", type=int, default=200, help="coarse grid points per period")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts")

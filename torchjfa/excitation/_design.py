@@ -294,7 +294,6 @@ def optimize_excitation(
                 problem.update_shift(a_raw, b_raw)
                 bar.update(1)
                 bar.set_postfix(condition=f"{crit:.4g}")
-            problem.shift = {}
             problem.scale_into_joint_limits(a_raw, b_raw)
             key = _condition_key(problem, a_raw, b_raw)
             if key < best[0]:
@@ -386,7 +385,7 @@ def _worst_violation(problem, a_raw, b_raw) -> float:
 
 
 def _worst(viol: dict[str, torch.Tensor]) -> float:
-    return max((float(v.max()) for v in viol.values()), default=-math.inf)
+    return max(float(v.max()) for v in viol.values())
 
 
 def _posture(limits: Limits, posture, n: int) -> np.ndarray:
