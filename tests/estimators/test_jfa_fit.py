@@ -240,6 +240,52 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
     assert {(True, True), (False, False)} <= verdicts  # both verdicts were tested
 
 
+def _blocks_definite(theta, cv, lam: float, lb) -> bool:
+    A, a_psy = jn.block_part(theta, cv, torch.full((1,), lam, dtype=F64), lb)[:2]
+    return bool((torch.linalg.eigvalsh(A) > 0).all() & (a_psy > 0).all())
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_block_damping_is_the_first_damping_of_nielsens_sequence_with_a_definite_block_part(ard):
+    """`block_damping` raises lam by Nielsen's rule (lam *= nu, nu *= 2) to the first value at
+    which every input's block of the damped matrix is positive definite (checked here by
+    eigenvalues, not Cholesky), where the raise before it was not; a lam that already gives
+    definite blocks is returned unchanged; the raises are counted. Early states of redundant
+    problems at small damping supply the indefinite cases."""
+    d = 6
+    hp = _hyper(ard, False)
+    raised = 0
+    for seed in range(3):
+        X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=True)
+        S = _standardised(X, y)
+        st, psy = jf._first_sweep(S, *jf.initial_state(S, None, hp), hp)
+        theta = jf._pack(st, psy, hp)[None]
+        batch = jb.Stats(*(t[None] for t in S))
+        cv = jn.derivatives(theta, batch, st[jb.PX][None], hp)
+        lb = torch.full(theta.shape[-1:], -torch.inf, dtype=F64)
+
+        for lam0 in (1e-9, 1e-6, 1e-3, 1.0):
+            lam, nu, raises = jn.block_damping(
+                theta,
+                cv,
+                torch.full((1,), lam0, dtype=F64),
+                torch.full((1,), 2.0, dtype=F64),
+                lb,
+                1e12,
+            )
+            seq, step = [lam0], 2.0
+            for _ in range(int(raises)):
+                seq.append(seq[-1] * step)
+                step *= 2.0
+            assert float(lam) == pytest.approx(seq[-1], rel=1e-14)
+            assert float(nu) == step
+            assert _blocks_definite(theta, cv, float(lam), lb)
+            if int(raises):
+                assert not _blocks_definite(theta, cv, seq[-2], lb)
+            raised += int(raises)
+    assert raised > 0  # the raising was exercised
+
+
 @pytest.mark.parametrize("variant", sorted(VARIANTS) + ["ml"])
 def test_fit_batch_gives_each_problem_its_single_fit(variant):
     """The public batched fit: problem by problem what fit_moments gives (1e-10), including a

@@ -38,7 +38,7 @@ import torch
 from .._threads import single_thread
 from . import _jfa_bound as jb
 from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
-from ._jfa_newton import derivatives, newton_step
+from ._jfa_newton import block_damping, derivatives, newton_step
 
 REASONS = ("max_iter", "bound", "coef")
 _LM_START = 1e-3  # Levenberg-Marquardt damping, relative to the Hessian's diagonal
@@ -61,7 +61,8 @@ class Result(NamedTuple):
     `REASONS`), ``n_accepted`` (accepted Newton steps and prunes), ``n_estep`` (E-step
     equivalents, the cost in ``d x d`` mat-vecs: one per bound evaluation and per gradient
     and Hessian, ``(d + 1)^3 / (6 d^2)`` per Newton solve (its Cholesky's flops over a
-    mat-vec's), 3 per prune trial), all ``(*batch,)`` int64."""
+    mat-vec's), ``r^3 / (6 d)`` per raise of the damping that refactors the ``r x r`` blocks
+    alone (`_jfa_newton.block_damping`), 3 per prune trial), all ``(*batch,)`` int64."""
 
     st: torch.Tensor
     psy: torch.Tensor
@@ -297,6 +298,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     n_small = _int(L)  # consecutive kept steps below the bound's resolution
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
     solve_cost = math.ceil((d + 1) ** 3 / (6 * d * d))
+    block_cost = math.ceil(((P - 1) // d) ** 3 / (6 * d))  # d Cholesky factors of r x r
     hist = [L]
     while bool(live.any()) and len(hist) < max_iter:
         was_live = live
@@ -323,7 +325,13 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             idx = newton.nonzero()[:, 0]
             sub = Stats(*(t[idx] for t in flat))
             cv_i = type(cv)(*(t[idx] for t in cv))
-            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam[idx], lb[idx])
+            # the damping the block part needs, found without a trial (`block_damping`)
+            lam_i, nu_i, raises = block_damping(
+                theta[idx], cv_i, lam[idx], nu[idx], lb[idx], _LM_MAX
+            )
+            lam[idx], nu[idx] = lam_i, nu_i
+            n_estep[idx] += raises * block_cost
+            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam_i, lb[idx])
             th_n, L_n = theta.clone(), L.clone()
             th_n[idx] = th_i
             L_n[idx] = _theta_bound(th_i, *sub, psx_c[idx], hp)
