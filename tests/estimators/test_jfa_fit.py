@@ -265,7 +265,7 @@ def test_block_damping_is_the_first_damping_of_nielsens_sequence_with_a_definite
         lb = torch.full(theta.shape[-1:], -torch.inf, dtype=F64)
 
         for lam0 in (1e-9, 1e-6, 1e-3, 1.0):
-            lam, nu, raises = jn.block_damping(
+            lam, nu, raises, _ = jn.block_damping(
                 theta,
                 cv,
                 torch.full((1,), lam0, dtype=F64),

@@ -326,12 +326,12 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             sub = Stats(*(t[idx] for t in flat))
             cv_i = type(cv)(*(t[idx] for t in cv))
             # the damping the block part needs, found without a trial (`block_damping`)
-            lam_i, nu_i, raises = block_damping(
+            lam_i, nu_i, raises, blocks = block_damping(
                 theta[idx], cv_i, lam[idx], nu[idx], lb[idx], _LM_MAX
             )
             lam[idx], nu[idx] = lam_i, nu_i
             n_estep[idx] += raises * block_cost
-            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam_i, lb[idx])
+            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam_i, lb[idx], blocks)
             th_n, L_n = theta.clone(), L.clone()
             th_n[idx] = th_i
             L_n[idx] = _theta_bound(th_i, *sub, psx_c[idx], hp)

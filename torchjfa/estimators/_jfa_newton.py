@@ -133,29 +133,54 @@ def block_part(theta, cv: Curvature, lam, lb):
     return A, a_psy, free, damp, lam_d
 
 
+class Blocks(NamedTuple):
+    """The block part of the damped Newton matrix (`block_part`) with its Cholesky factors:
+    ``A (B, d, r, r)``, ``a_psy (B,)``, ``free, damp, lam_d (B, P)``, ``chol (B, d, r, r)``,
+    ``info (B, d)`` (0 where a block is positive definite)."""
+
+    A: torch.Tensor
+    a_psy: torch.Tensor
+    free: torch.Tensor
+    damp: torch.Tensor
+    lam_d: torch.Tensor
+    chol: torch.Tensor
+    info: torch.Tensor
+
+
+def _blocks(theta, cv: Curvature, lam, lb) -> Blocks:
+    part = block_part(theta, cv, lam, lb)
+    return Blocks(*part, *torch.linalg.cholesky_ex(part[0]))
+
+
 def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float):
     """Raise the damping by Nielsen's rule (``lam <- lam nu``, ``nu <- 2 nu``) until the block
     part ``A`` of the damped Newton matrix (`block_part`) is positive definite, or ``lam``
-    passes ``lam_max``: ``(lam, nu, raises)``, ``raises (B,)`` the number of raises.
+    passes ``lam_max``: ``(lam, nu, raises, blocks)``, ``raises (B,)`` the number of raises,
+    ``blocks`` (`Blocks`) at the returned ``lam``, for `newton_step`.
 
     `newton_step` refuses a step whose ``A`` is not positive definite, and the optimiser then
     raises the damping; raising it here first costs one ``r x r`` Cholesky per input and raise
     instead of a refused trial (a ``(d + 1) x (d + 1)`` Cholesky and a bound). On the Fig. 2
-    cells (``scripts/bench_fit_cost.py``) such refusals were 44 % of the trials.
+    cells (``scripts/bench_fit_cost.py``) such refusals were 44 % of the trials. Only the
+    problems still indefinite are refactored.
     """
+    lam, nu = lam.clone(), nu.clone()
     raises = torch.zeros(lam.shape, dtype=torch.int64, device=lam.device)
+    blocks = _blocks(theta, cv, lam, lb)
     while True:
-        A, a_psy = block_part(theta, cv, lam, lb)[:2]
-        info = torch.linalg.cholesky_ex(A).info
-        bad = ~((info == 0).all(-1) & (a_psy > 0)) & (lam <= lam_max)
+        bad = ~((blocks.info == 0).all(-1) & (blocks.a_psy > 0)) & (lam <= lam_max)
         if not bool(bad.any()):
-            return lam, nu, raises
-        lam = torch.where(bad, lam * nu, lam)
-        nu = torch.where(bad, 2.0 * nu, nu)
-        raises = raises + bad.long()
+            return lam, nu, raises, blocks
+        idx = bad.nonzero()[:, 0]
+        lam[idx] = lam[idx] * nu[idx]
+        nu[idx] = 2.0 * nu[idx]
+        raises[idx] += 1
+        sub = _blocks(theta[idx], type(cv)(*(t[idx] for t in cv)), lam[idx], lb[idx])
+        for kept, fresh in zip(blocks, sub, strict=True):
+            kept[idx] = fresh
 
 
-def newton_step(theta, cv: Curvature, lam, lb):
+def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted)``.
 
     Coordinates at their lower bound with the gradient pointing below it are held; the others
@@ -176,16 +201,17 @@ def newton_step(theta, cv: Curvature, lam, lb):
     may be: the optimiser then raises the damping, which makes ``A`` positive definite, at the
     cost of one more trial. A dense ``P x P`` Cholesky (``P = r d + 1``) to decide those
     cases would cost about ``P^3 / (6 d^2)`` mat-vecs (2,800 at ``d = 77``), two hundred
-    trials' worth.
+    trials' worth. ``blocks``: the block part at this ``lam``, if at hand (`block_damping`).
     """
-    A, a_psy, free, damp, lam_d = block_part(theta, cv, lam, lb)
+    if blocks is None:
+        blocks = _blocks(theta, cv, lam, lb)
+    A, a_psy, free, damp, lam_d, chol, info = blocks
     g = cv.g * free
     B, r, d = cv.jk.shape
     fb = free[:, : r * d].reshape(B, r, d)
     fp = free[:, -1]
     jk, jq, psy = cv.jk * fb, cv.jq * fb, cv.psy * fp
     w_kk = cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None]  # (B, d)
-    chol, info = torch.linalg.cholesky_ex(A)  # (B, d, r, r)
     rhs = torch.stack([g[:, : r * d].reshape(B, r, d), jk, jq], -1).permute(0, 2, 1, 3)
     z, yk, yq = torch.cholesky_solve(rhs, chol).unbind(-1)  # (B, d, r) each
     jk_t, jq_t = jk.mT, jq.mT  # (B, d, r)
