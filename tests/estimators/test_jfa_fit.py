@@ -338,3 +338,74 @@ def test_the_jackknife_of_bayesian_jfa_is_its_single_refits():
     K = len(folds)
     ref = ((K - 1) / K * (singles - singles.mean(0)).pow(2).sum(0)).sqrt()
     torch.testing.assert_close(std, ref, rtol=1e-9, atol=1e-12)
+
+
+def _mid_fit(ard, fixed_x, seed=1, d=6):
+    """A state 40 plain EM sweeps into a redundant problem with irrelevant inputs: inputs on
+    their way to the prior's zero, so that some prunes gain and others lose."""
+    hp = _hyper(ard, fixed_x)
+    X, y = _data(400, d, seed=seed, n_irrelevant=3, redundant=True)
+    S = _standardised(X, y)
+    psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
+    res = jf.fit(S, psx, hp, method="em", max_iter=40, tol=0.0, coef_tol=0.0)
+    return S, hp, jf._pack(res.st, res.psy, hp), res.st[jb.PX]
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_each_single_prunes_gain_is_the_change_of_the_bound(ard, fixed_x):
+    """The prune candidates' closed-form gains (S_ee through k_m, the input's own terms with its
+    variances moved) against the collapsed bound evaluated after each prune, to the bound's
+    round-off; both signs occur."""
+    S, hp, theta, psx_c = _mid_fit(ard, fixed_x)
+    cand = jf._prune_candidates(theta, S, psx_c, hp)
+    L0 = jf._theta_bound(theta, *S, psx_c, hp)
+    d = S.xy.shape[-1]
+    exact = torch.stack(
+        [
+            jf._theta_bound(jf._with_prunes(cand, torch.arange(d) == m, hp), *S, psx_c, hp) - L0
+            for m in range(d)
+        ]
+    )
+    tol = 4 * jf._ROUNDOFF * max(float(L0.abs()), float(S.n))
+    torch.testing.assert_close(cand.gain, exact, rtol=0.0, atol=tol)
+    assert bool((exact > 0).any()) and bool((exact < 0).any())
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_greedy_prunes_are_the_sequence_of_best_exact_prunes(ard):
+    """`_greedy_prunes` (O(d) updates of the gains) against a brute-force greedy: from the
+    state, repeatedly add the input whose prune raises the collapsed bound most, while that
+    rise exceeds thr."""
+    for seed in (1, 2, 3):
+        S, hp, theta, psx_c = _mid_fit(ard, False, seed=seed, d=7)
+        d = 7
+        cand = jf._prune_candidates(theta, S, psx_c, hp)
+        thr = torch.tensor(0.01, dtype=F64)
+        pick = torch.zeros(d, dtype=torch.bool)
+        L = jf._theta_bound(theta, *S, psx_c, hp)
+        while True:
+            trial = [pick | (torch.arange(d) == m) for m in range(d)]
+            gains = torch.stack(
+                [jf._theta_bound(jf._with_prunes(cand, t, hp), *S, psx_c, hp) - L for t in trial]
+            )
+            gains = torch.where(pick, -torch.inf, gains)
+            assert bool(((gains - thr).abs() > 1e-6).all())  # no call on round-off
+            best = int(gains.argmax())
+            if float(gains[best]) <= float(thr):
+                break
+            pick, L = trial[best], L + gains[best]
+        greedy = jf._greedy_prunes(cand, S, thr)
+        assert greedy.tolist() == pick.tolist()
+
+
+def test_pruned_variances_are_stationary_where_both_loadings_are_pruned():
+    """With alpha shared and psi_x free a prune zeroes both loadings, and `_pruned_variances`
+    puts V_z, V_x where the bound's gradient in log V vanishes (autograd; it is of order 1/2
+    before, the entropy's)."""
+    S, hp, theta, psx_c = _mid_fit("shared", False)
+    cand = jf._prune_candidates(theta, S, psx_c, hp)
+    d = S.xy.shape[-1]
+    th = jf._with_prunes(cand, torch.ones(d, dtype=torch.bool), hp).requires_grad_(True)
+    (g,) = torch.autograd.grad(jf._theta_bound(th, *S, psx_c, hp), th)
+    assert float(g[2 * d : 4 * d].abs().max()) < 1e-6

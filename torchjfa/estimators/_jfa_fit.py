@@ -14,8 +14,11 @@ the state); `fit` is the entry point. Three methods:
   has converged, and also when its steps gain little (an input heading for the prior's zero,
   which Newton approaches only geometrically in the log-variances), the prune move of the
   fitting note is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm
-  = v_m`` when alpha is shared and psi_x free; ``v``, ``tau`` and ``c`` unchanged); the
-  improving prunes are kept together (or the best one alone) and Newton resumes. Every step,
+  = v_m`` when alpha is shared and psi_x free; ``c`` unchanged, the input's posterior variances
+  moved to their optimum, where Newton would take several steps); the improving prunes are
+  kept together, or greedily one after another, whichever gains more, and Newton resumes.
+  Before a Newton trial the damping is raised until the blocks of the Newton matrix are
+  positive definite, which needs no trial (`_jfa_newton.block_damping`). Every step,
   damped or a prune, is kept only if the bound does not fall, so the recorded bound never
   decreases (beyond its round-off); near an optimum the steps converge quadratically, so the
   answer does not depend on the path to it (the chunking of the data, a batch or a single fit)
@@ -211,13 +214,95 @@ def _theta_bound(theta, xx, xy, yy, n, psx_c, hp: Hyper) -> torch.Tensor:
     return jb.reduced_bound(Stats(xx, xy, yy, n), *_unpack(theta, psx_c, hp), hp)
 
 
-def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
-    """The prune move on every input (module docstring): ``(theta_trial, L_trial, any)``.
+def _greedy_prunes(cand: _Prunes, S: Stats, thr) -> torch.Tensor:
+    """The inputs that pruning one at a time prunes, the best first, each while it gains more
+    than ``thr`` given the ones before it: ``(*batch, d)`` bool. A prune keeps ``c`` and
+    changes the other inputs' gains only through ``X^T e``, by ``(X^T X)_{:, j} k_j`` when
+    input j goes: ``O(d)`` a round, where the prunes one Newton cycle at a time cost about
+    four iterations each (``scripts/bench_fit_cost.py``)."""
+    gain, own, c = cand.gain, cand.own, cand.c[..., None]
+    pick = torch.zeros_like(gain, dtype=torch.bool)
+    k, s_xe = cand.k, cand.s_xe
+    for _ in range(gain.shape[-1]):
+        gain = torch.where(pick, -torch.inf, gain)
+        j = gain.argmax(-1, keepdim=True)
+        ok = gain.gather(-1, j)[..., 0] > thr
+        if not bool(ok.any()):
+            break
+        hot = torch.nn.functional.one_hot(j[..., 0], gain.shape[-1]).bool() & ok[..., None]
+        col = torch.gather(S.xx, -1, j[..., None].expand(*S.xx.shape[:-1], 1))[..., 0]
+        s_xe = s_xe + col * (k * hot).sum(-1, keepdim=True)
+        k = torch.where(hot, 0.0, k)
+        pick = pick | hot
+        gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c) + own
+    return pick
 
-    Each candidate keeps ``v``, ``tau`` and ``c``, so its gain is the change of ``S_ee`` and of
-    its own KL terms; the candidates that gain more than ``thr`` are tried together and the
-    best alone, and the better of the two is returned (``any``: some candidate gained).
+
+def _pruned_variances(mx, vz, vx, psz, psx, n, hp: Hyper, rounds: int = 2):
+    """The posterior variances ``(V_z, V_x)`` at which a pruned input's own terms are
+    stationary, ``(*batch, d)`` each, given its ``<w_x>`` and noise variances (``<w_z> = 0``).
+
+    With ``tau = 1 + V_z / psi_z + V_x / psi_x`` held, the bound's ``V``-terms are ``-N/2 log
+    tau - a log b + (log V_z + log V_x) / 2`` (and ``-lam V_x / 2`` when alpha governs w_z
+    alone), ``b`` Q(alpha)'s rate, so ``V_z = b / (N_z b + a)`` with ``N_z = N / (psi_z tau)``,
+    likewise ``V_x`` when alpha is shared (else ``1 / (N_x + lam)``), and ``b`` is the root of
+    ``g(b) = b - b0 - <w_x>^2 / 2 [shared] - (V_z(b) + V_x(b) [shared]) / 2``: convex and
+    increasing, so Newton from the right converges to it monotonically. Newton on the bound
+    approaches this point only geometrically (``V`` falls by about e a step: ``b`` ends near
+    ``sqrt(b0 / N)``, orders of magnitude below the unpruned input's), hence this move. ``tau``
+    is then updated and the solve repeated (``rounds``). Where ``<w_x> != 0`` this ignores how
+    ``tau`` moves ``v`` (second order at ``v``'s optimum); the prune's gain counts it.
     """
+    a, shared = hp.a, hp.shared
+    n = n[..., None]
+    tau = 1.0 + vz / psz + vx / psx
+    base = hp.b0 + (0.5 * mx * mx if shared else 0.0)
+    for _ in range(rounds):
+        nz, nx = n / (psz * tau), n / (psx * tau)
+        b = base + 0.5 / nz + (0.5 / nx if shared else 0.0)  # g(b) >= 0: right of the root
+        for it in range(64):
+            dz = nz * b + a
+            g = b - base - 0.5 * b / dz
+            dg = 1.0 - 0.5 * a / (dz * dz)
+            if shared:
+                dx = nx * b + a
+                g = g - 0.5 * b / dx
+                dg = dg - 0.5 * a / (dx * dx)
+            b_new = (b - g / dg).clamp_min(hp.b0)
+            # quadratic at the end; the relative change stalls near 1e-14 (round-off)
+            if it % 4 == 3 and bool(((b - b_new).abs() <= 1e-12 * b).all()):
+                b = b_new
+                break
+            b = b_new
+        vz = b / (nz * b + a)
+        vx = b / (nx * b + a) if shared else 1.0 / (nx + hp.lam)
+        tau = 1.0 + vz / psz + vx / psx
+    return vz, vx
+
+
+class _Prunes(NamedTuple):
+    """The prune move's candidates at one state (`_prune_candidates`): ``cols`` the state's
+    ``mz, mx, vz, vx, psz, psx`` and ``new`` each input's values once pruned (dicts of
+    ``(*batch, d)``), ``psy``; ``gain (*batch, d)`` each single prune's exact gain, nats;
+    ``k, s_xe (*batch, d)``, ``c (*batch,)`` and ``own (*batch, d)`` the part of each gain
+    that does not depend on the other inputs (for `_greedy_prunes`)."""
+
+    cols: dict
+    new: dict
+    psy: torch.Tensor
+    gain: torch.Tensor
+    k: torch.Tensor
+    s_xe: torch.Tensor
+    c: torch.Tensor
+    own: torch.Tensor
+
+
+def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
+    """Each input pruned alone (module docstring): ``<w_z> = 0``, and ``<w_x> = 0`` with
+    ``psi_x = v`` when alpha is shared and psi_x free; ``psi_z = q``, so ``c`` is unchanged,
+    the posterior variances at their optimum for the pruned input (`_pruned_variances`).
+    Its gain is exact: the change of ``S_ee`` (through ``k_m`` alone) and of the input's own
+    terms."""
     mz, mx, vz, vx, psz, psx, psy = _unpack(theta, psx_c, hp)
     tau = 1.0 + vz / psz + vx / psx
     v = mx * mx / tau + psx
@@ -227,24 +312,43 @@ def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     s_xe = S.xy - (S.xx @ k[..., None])[..., 0]
     both = hp.shared and not hp.fixed_x  # prune w_x too (psi_x takes v), else w_z alone
     zero = torch.zeros_like(mz)
-    new = {"mz": zero, "psz": q, "vz": vz * q / psz}
-    new.update(
-        {"mx": zero, "psx": v, "vx": vx * v / psx} if both else {"mx": mx, "psx": psx, "vx": vx}
+    new = {"mz": zero, "psz": q}
+    new.update({"mx": zero, "psx": v} if both else {"mx": mx, "psx": psx})
+    new["vz"], new["vx"] = _pruned_variances(
+        new["mx"], vz * q / psz, vx * new["psx"] / psx, new["psz"], new["psx"], S.n, hp
     )
-    gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c[..., None])
-    gain = gain + jb.kl_terms(new["mz"], new["mx"], new["vz"], new["vx"], hp)
-    gain = gain - jb.kl_terms(mz, mx, vz, vx, hp)
-    good = gain > thr[..., None]
-    best = torch.nn.functional.one_hot(gain.argmax(-1), gain.shape[-1]).bool() & good
-    trials, bounds = [], []
-    for pick in (good, best):
-        cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
-        cols = {key: torch.where(pick, new[key], val) for key, val in cols.items()}
-        st = torch.stack([cols[r] for r in ("mz", "mx", "vz", "vx", "psz", "psx")], -2)
-        st = torch.cat([st[..., :4, :], torch.zeros_like(st[..., :1, :]), st[..., 4:, :]], -2)
-        th = _pack(st, psy, hp)
-        trials.append(th)
-        bounds.append(_theta_bound(th, *S, psx_c, hp))
+    n = S.n[..., None]
+    tau_new = 1.0 + new["vz"] / new["psz"] + new["vx"] / new["psx"]
+    v_new = new["mx"] * new["mx"] / tau_new + new["psx"]  # v itself when w_x is pruned
+    own = jb.kl_terms(new["mz"], new["mx"], new["vz"], new["vx"], hp)
+    own = own - jb.kl_terms(mz, mx, vz, vx, hp)
+    own = own - 0.5 * n * (torch.log(tau_new) - torch.log(tau) + torch.log(v_new) - torch.log(v))
+    own = own - 0.5 * S.dg * (1.0 / v_new - 1.0 / v)
+    gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c[..., None]) + own
+    cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
+    return _Prunes(cols, new, psy, gain, k, s_xe, c, own)
+
+
+def _with_prunes(cand: _Prunes, pick: torch.Tensor, hp: Hyper) -> torch.Tensor:
+    """The packed state with the inputs of ``pick (*batch, d)`` pruned."""
+    cols = {key: torch.where(pick, cand.new[key], val) for key, val in cand.cols.items()}
+    st = torch.stack([cols[r] for r in ("mz", "mx", "vz", "vx", "psz", "psx")], -2)
+    st = torch.cat([st[..., :4, :], torch.zeros_like(st[..., :1, :]), st[..., 4:, :]], -2)
+    return _pack(st, cand.psy, hp)
+
+
+def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
+    """The prune move on every input: ``(theta_trial, L_trial, any)``.
+
+    Of the single prunes (`_prune_candidates`), those that gain more than ``thr`` are tried
+    together, and greedily one after the other (`_greedy_prunes`); the better of the two is
+    returned (``any``: some candidate gained).
+    """
+    cand = _prune_candidates(theta, S, psx_c, hp)
+    good = cand.gain > thr[..., None]
+    greedy = _greedy_prunes(cand, S, thr)
+    trials = [_with_prunes(cand, pick, hp) for pick in (good, greedy)]
+    bounds = [_theta_bound(th, *S, psx_c, hp) for th in trials]
     first = bounds[0] >= bounds[1]
     return (
         torch.where(first[..., None], trials[0], trials[1]),
