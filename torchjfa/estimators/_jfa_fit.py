@@ -235,6 +235,7 @@ def _greedy_prunes(cand: _Prunes, S: Stats, thr) -> torch.Tensor:
         k = torch.where(hot, 0.0, k)
         pick = pick | hot
         gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c) + own
+        gain = torch.where(cand.k == 0, -torch.inf, gain)
     return pick
 
 
@@ -259,8 +260,13 @@ def _pruned_variances(mx, vz, vx, psz, psx, n, hp: Hyper, rounds: int = 2):
     base = hp.b0 + (0.5 * mx * mx if shared else 0.0)
     for _ in range(rounds):
         nz, nx = n / (psz * tau), n / (psx * tau)
-        b = base + 0.5 / nz + (0.5 / nx if shared else 0.0)  # g(b) >= 0: right of the root
-        for it in range(64):
+        # start at the root of g's expansion to second order in N b / a, which lies left of
+        # g's (the expansion bounds g from above); the first Newton step lands right of it,
+        # from where the steps fall monotonically
+        quad = 0.5 * (nz + (nx if shared else 0.0)) / (a * a)
+        lin = 1.0 - (1.0 if shared else 0.5) / a
+        b = 2.0 * base / (lin + torch.sqrt(lin * lin + 4.0 * quad * base))
+        for it in range(48):
             dz = nz * b + a
             g = b - base - 0.5 * b / dz
             dg = 1.0 - 0.5 * a / (dz * dz)
@@ -269,7 +275,7 @@ def _pruned_variances(mx, vz, vx, psz, psx, n, hp: Hyper, rounds: int = 2):
                 g = g - 0.5 * b / dx
                 dg = dg - 0.5 * a / (dx * dx)
             b_new = (b - g / dg).clamp_min(hp.b0)
-            # quadratic at the end; the relative change stalls near 1e-14 (round-off)
+            # quadratic at the end; the relative change stalls near 1e-15 (round-off)
             if it % 4 == 3 and bool(((b - b_new).abs() <= 1e-12 * b).all()):
                 b = b_new
                 break
@@ -325,6 +331,9 @@ def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
     own = own - 0.5 * n * (torch.log(tau_new) - torch.log(tau) + torch.log(v_new) - torch.log(v))
     own = own - 0.5 * S.dg * (1.0 / v_new - 1.0 / v)
     gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c[..., None]) + own
+    # an input pruned before (k = 0) is no candidate: a prune would move its variances alone,
+    # which Newton has in hand, and a found prune resets the damping
+    gain = torch.where(k == 0, -torch.inf, gain)
     cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
     return _Prunes(cols, new, psy, gain, k, s_xe, c, own)
 
