@@ -220,7 +220,7 @@ def _greedy_prunes(cand: _Prunes, S: Stats, thr) -> torch.Tensor:
     changes the other inputs' gains only through ``X^T e``, by ``(X^T X)_{:, j} k_j`` when
     input j goes: ``O(d)`` a round, where the prunes one Newton cycle at a time cost about
     four iterations each (``scripts/bench_fit_cost.py``)."""
-    gain, own, c = cand.gain, cand.own, cand.c[..., None]
+    gain, own = cand.gain, cand.own
     pick = torch.zeros_like(gain, dtype=torch.bool)
     k, s_xe = cand.k, cand.s_xe
     for _ in range(gain.shape[-1]):
@@ -234,9 +234,17 @@ def _greedy_prunes(cand: _Prunes, S: Stats, thr) -> torch.Tensor:
         s_xe = s_xe + col * (k * hot).sum(-1, keepdim=True)
         k = torch.where(hot, 0.0, k)
         pick = pick | hot
-        gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c) + own
-        gain = torch.where(cand.k == 0, -torch.inf, gain)
+        gain = _prune_gains(k, s_xe, S.dg, cand.c, own, cand.k == 0)
     return pick
+
+
+def _prune_gains(k, s_xe, dg, c, own, pruned_before):
+    """Each single prune's gain, ``(*batch, d)`` nats: the change of ``-S_ee / (2 c)`` as
+    ``k_m`` goes to 0, plus its own terms' change ``own``; ``-inf`` for an input pruned before
+    (``k = 0``): a prune would move its variances alone, which Newton has in hand, and a
+    found prune resets the damping."""
+    gain = -(2.0 * k * s_xe + k * k * dg) / (2.0 * c[..., None]) + own
+    return torch.where(pruned_before, -torch.inf, gain)
 
 
 def _pruned_variances(mx, vz, vx, psz, psx, n, hp: Hyper, rounds: int = 2):
@@ -330,10 +338,7 @@ def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
     own = own - jb.kl_terms(mz, mx, vz, vx, hp)
     own = own - 0.5 * n * (torch.log(tau_new) - torch.log(tau) + torch.log(v_new) - torch.log(v))
     own = own - 0.5 * S.dg * (1.0 / v_new - 1.0 / v)
-    gain = -(2.0 * k * s_xe + k * k * S.dg) / (2.0 * c[..., None]) + own
-    # an input pruned before (k = 0) is no candidate: a prune would move its variances alone,
-    # which Newton has in hand, and a found prune resets the damping
-    gain = torch.where(k == 0, -torch.inf, gain)
+    gain = _prune_gains(k, s_xe, S.dg, c, own, k == 0)
     cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
     return _Prunes(cols, new, psy, gain, k, s_xe, c, own)
 

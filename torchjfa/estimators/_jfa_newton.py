@@ -198,8 +198,8 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     (the nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
     Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
     Where ``A`` is not positive definite the step is refused (``ok`` False) although ``M``
-    may be: the optimiser then raises the damping, which makes ``A`` positive definite, at the
-    cost of one more trial. A dense ``P x P`` Cholesky (``P = r d + 1``) to decide those
+    may be: the optimiser raises the damping until ``A`` is positive definite before it
+    calls this (`block_damping`, no trial needed). A dense ``P x P`` Cholesky (``P = r d + 1``) to decide those
     cases would cost about ``P^3 / (6 d^2)`` mat-vecs (2,800 at ``d = 77``), two hundred
     trials' worth. ``blocks``: the block part at this ``lam``, if at hand (`block_damping`).
     """
