@@ -7,7 +7,9 @@ frequency of ``1 / --period`` Hz (default 60 s, harmonics 12..96: 0.2-1.6 Hz) an
 ``--samples`` samples (about 19 s at 420 Hz), so the training data hold less than one period,
 the period noise is unavailable and ``--input-noise auto`` takes the propagated sensor noise
 (`torchjfa.data.propagated_noise`). Identified by `torchjfa.identify` with the defaults
-(cut-off chosen on the log, residual joint weights, projection) and
+(cut-off chosen on the log, residual joint weights, projection; but no description prior:
+the simulated robot's description is its truth, and a prior towards it would lend every
+estimator the answer) and
 
 - ``Options(estimator="ols")``,
 - ``Options(estimator="bayes-jfa")`` (``ard="shared"``, the default) and
@@ -101,7 +103,9 @@ def one_seed(robot, model, theta, seed, *, n_samples, n_test, period_s) -> dict:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentificationWarning)
-            ident = torchjfa.identify(model, log, Options(cutoff=cutoff, **kw))
+            # no description prior: in simulation the description IS the truth
+            opts = Options(cutoff=cutoff, description_prior=None, **kw)
+            ident = torchjfa.identify(model, log, opts)
         cutoff = ident.data.cutoff_hz
         base = ident.report.base
         err = base.values(ident.result.theta_hat) - base.values(theta)

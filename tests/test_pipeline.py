@@ -377,6 +377,47 @@ def _two_link_log(n=600, seed=0):
     return model, {"q": q, "qd": qd, "qdd": qdd, "tau": tau}
 
 
+def test_auto_prior_scores_each_block_by_the_closed_form_written_out():
+    """``description_prior="auto"``'s scores, recomputed from the rows: per block, least squares
+    on the other blocks' rows, the prior's posterior mean ``(M + w s^2 diag(p^-2))^-1 (M
+    theta_hat + w s^2 diag(p^-2) nominal)`` (``s^2`` the residual variance per row, ``p`` the
+    description's parameter scales; a 1e-8 ridge at w = 0), the held-out block's squared error;
+    the RMS over all rows."""
+    from torchjfa.estimators import OLS
+    from torchjfa.physical import parameter_scales
+    from torchjfa.pipeline import PRIOR_BLOCKS, PRIOR_WEIGHTS
+
+    model, log = _two_link_log()
+    auto = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+    Y, tau = model.regressor(log["q"], log["qd"], log["qdd"]), log["tau"]
+    n, d = Y.shape[0], model.n_params
+    bounds = [round(k * n / PRIOR_BLOCKS) for k in range(PRIOR_BLOCKS + 1)]
+    rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
+    for a, b in zip(bounds, bounds[1:], strict=False):
+        rest = torch.ones(n, dtype=torch.bool)
+        rest[a:b] = False
+        X, y = Y[rest].reshape(-1, d).numpy(), tau[rest].reshape(-1).numpy()
+        Xk, yk = Y[a:b].reshape(-1, d).numpy(), tau[a:b].reshape(-1).numpy()
+        theta_hat = np.linalg.lstsq(X, y, rcond=None)[0]
+        M = X.T @ X
+        s2 = float(((y - X @ theta_hat) ** 2).sum()) / len(y)
+        scale = parameter_scales(
+            model.parameter_names, model.nominal_theta, Moments.from_data(X, y)
+        ).numpy()
+        nominal = model.nominal_theta.numpy()
+        for w in PRIOR_WEIGHTS:
+            lam = w * s2 / scale**2
+            A = M + np.diag(lam) + (1e-8 * np.trace(M) / d * np.eye(d) if w == 0 else 0.0)
+            theta = np.linalg.lstsq(A, M @ theta_hat + lam * nominal, rcond=None)[0]
+            rss[w] += float(((yk - Xk @ theta) ** 2).sum())
+    expected = {w: math.sqrt(v / (n * model.n_dof)) for w, v in rss.items()}
+    # at w = 0 the 1e-8 ridge alone holds the null direction of this model's columns (an exact
+    # linear dependency): the system's condition number is up to d / 1e-8 = 2.2e9, and two
+    # solvers agree to its product with the round-off, 2.2e9 * 2.2e-16 = 5e-7
+    for w in PRIOR_WEIGHTS:
+        assert auto.prior_choice[w] == pytest.approx(expected[w], rel=1e-6 if w == 0 else 1e-8), w
+
+
 def test_description_prior_options():
     from torchjfa.estimators import OLS
     from torchjfa.pipeline import PRIOR_WEIGHTS

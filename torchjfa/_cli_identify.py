@@ -98,6 +98,14 @@ def _skip(text: str):
 
 
 # ------------------------------------------------------------------------------ identify
+def _description_prior(value):
+    """``--description-prior``: not given -> ``"auto"`` (`Options`' default; none with
+    ``--no-project``, whose projection is off), 0 -> None (off), else the value."""
+    if value is None:
+        return "auto"
+    return None if value == 0 else value
+
+
 def identify_options(args):
     """The `torchjfa.identification.Options` that ``torchjfa identify``'s arguments give."""
     from .identification import Compute, Options
@@ -129,7 +137,7 @@ def identify_options(args):
         bias_correction=args.bias_correction,
         project=not args.no_project,
         parametrization=args.parametrization,
-        description_prior=args.description_prior,
+        description_prior=_description_prior(args.description_prior),
         compute=Compute(progress=not args.quiet, compiled=args.compiled),
     )
 
@@ -334,9 +342,10 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
         "--description-prior",
         type=_prior_weight,
         default=None,
-        help="pull the projection towards the description where the data are silent: a "
-        "weight >= 0 (prior std = a typical value of each kind / sqrt(weight)) or 'auto' "
-        "(chosen on a held-out block of the training data); default off",
+        help="pull the projection towards the description where the data are silent: 'auto' "
+        "(the weight chosen by cross-validation over blocks of the training data) or a weight "
+        "(prior std = a typical value of each kind / sqrt(weight)); 0 turns it off "
+        "(default: auto)",
     )
     p.add_argument(
         "--max-iter", type=int, default=20_000, help="most EM iterations of JFA and Bayesian JFA"

@@ -450,3 +450,47 @@ def test_scaled_prior_limits_and_scale_equivariance():
         torch.testing.assert_close(r.theta / c, base.theta, rtol=1e-6, atol=1e-8)
     with pytest.raises(ValueError, match="prior_scale must be positive"):
         project(bad, **{**kw, "prior_scale": torch.zeros(layout.n_params, dtype=torch.float64)})
+
+
+@pytest.mark.parametrize("ridge", [0.0, 1e-3])
+def test_unconstrained_projection_minimises_the_written_out_objective(ridge):
+    """The closed form is the stationary point of project's objective written from its
+    docstring: eq. 8 in M = X^T X + N diag(noise), ridge r tr(M)/d ||theta||^2 and the scaled
+    prior w s_p sum ((theta - prior) / p_k)^2, s_p = sum_k p_k^2 M_kk / d (autograd gradient
+    zero to round-off), and a strict minimum (every random step raises it)."""
+    from torchjfa.physical import unconstrained_projection
+
+    g = torch.Generator().manual_seed(31)
+    layout, theta_hat, prior, _, scale = _prior_problem(g)
+    d = layout.n_params
+    X = torch.randn(300, d, generator=g, dtype=torch.float64) * torch.logspace(0, -1, d)
+    X[:, :3] = 0.0  # unexcited: only the prior (and the ridge) decide there
+    noise = torch.rand(d, generator=g, dtype=torch.float64) * 1e-3
+    moments = Moments.from_data(X, torch.randn(300, generator=g, dtype=torch.float64))
+    w = 0.05
+    theta = unconstrained_projection(
+        theta_hat, layout=layout, moments=moments, input_noise=noise,
+        prior=prior, prior_weight=w, prior_scale=scale, ridge=ridge,
+    )  # fmt: skip
+    M = X.T @ X + 300 * torch.diag(noise)
+    s = torch.diagonal(M).sum() / d
+    s_p = (scale.square() * torch.diagonal(M)).sum() / d
+
+    def objective(t):
+        delta = t - theta_hat
+        prior_term = (((t - prior) / scale) ** 2).sum()
+        return delta @ M @ delta + ridge * s * (t @ t) + w * s_p * prior_term
+
+    t = theta.clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(objective(t), t)
+    # the gradient's terms are O(|M| |theta|); round-off of the solve is ~1e-16 of that
+    size = float(torch.linalg.matrix_norm(M, 2) * theta.abs().max())
+    assert float(grad.abs().max()) < 1e-10 * size
+    f0 = float(objective(theta))
+    for _ in range(5):
+        step = 1e-3 * torch.randn(d, generator=g, dtype=torch.float64)
+        assert float(objective(theta + step)) > f0
+    # without a prior and a ridge on a full-rank metric it is theta_hat itself
+    full = Moments.from_data(torch.randn(300, d, generator=g, dtype=torch.float64), X[:, 5])
+    back = unconstrained_projection(theta_hat, layout=layout, moments=full, ridge=0.0)
+    torch.testing.assert_close(back, theta_hat, rtol=1e-10, atol=1e-12)

@@ -514,7 +514,7 @@ def fit(
         input_noise=noise.input_noise,
         projection_options=dict(options.projection_options),
         jackknife=options.jackknife,
-        description_prior=options.description_prior,
+        description_prior=options.description_prior if options.project else None,
         joint_weights=noise.joint_weights,
         bias=bias if n_refits else None,
         **options.compute.stream(),

@@ -3,7 +3,8 @@
 - `VirtualParameters` (the seed paper's eq. 5) and `LogCholeskyParameters` (Rucker and Wensing,
   2022): ``nn.Module`` s whose output theta is consistent for every value of their variables.
 - `project`: the consistent theta closest to an unconstrained estimate in the data's metric
-  ``X^T X + N diag(input noise)`` (eq. 8), by LBFGS on either parametrisation.
+  ``X^T X + N diag(input noise)`` (eq. 8), by LBFGS on either parametrisation;
+  `unconstrained_projection` the same objective's minimiser without the constraints.
 - `check`: per-body mass, inertia, triangle-inequality, pseudo-inertia and friction checks.
 - `base_parameters`: what the data determine (base parameters, their combinations, the
   condition number, and per parameter: determined, in combination, poorly or not excited).
@@ -22,3 +23,4 @@ from ._parametrizations import inertial_from_virtual as inertial_from_virtual
 from ._project import PARAMETRIZATIONS as PARAMETRIZATIONS
 from ._project import ProjectionResult as ProjectionResult
 from ._project import project as project
+from ._project import unconstrained_projection as unconstrained_projection

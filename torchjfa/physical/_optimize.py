@@ -49,6 +49,17 @@ class Problem:
             f = f + self.weight * (sq if self.prior_w is None else self.prior_w * sq).sum()
         return f
 
+    def minimiser(self) -> torch.Tensor:
+        """The objective's minimiser without the consistency constraints, ``(d,)``: the solution
+        of ``(M + ridge I + weight W) theta = M theta_hat + weight W prior`` (minimum norm where
+        that matrix is singular: no ridge, no prior and a rank-deficient M)."""
+        A = 0.5 * self.norm * self.hess
+        b = self.M @ self.theta_hat
+        if self.prior is not None and self.weight:
+            w = 1.0 if self.prior_w is None else self.prior_w
+            b = b + self.weight * w * self.prior
+        return torch.linalg.pinv(A, rtol=1e-14, hermitian=True) @ b
+
     def loss(self, theta: torch.Tensor) -> torch.Tensor:
         """The objective divided by its value at theta = 0 (the data term's: the energy of the
         torques theta_hat predicts, plus the prior's)."""

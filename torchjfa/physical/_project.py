@@ -32,7 +32,7 @@ from ._parametrizations import (
     resolve_layout,
 )
 
-__all__ = ["ProjectionResult", "project", "PARAMETRIZATIONS"]
+__all__ = ["ProjectionResult", "project", "unconstrained_projection", "PARAMETRIZATIONS"]
 
 PARAMETRIZATIONS = {"virtual": VirtualParameters, "log-cholesky": LogCholeskyParameters}
 
@@ -334,6 +334,48 @@ def project(
     if verbose:
         print(result.table())
     return result
+
+
+def unconstrained_projection(
+    theta_hat,
+    *,
+    layout,
+    moments: Moments | None = None,
+    metric=None,
+    input_noise=None,
+    prior=None,
+    prior_weight: float = 0.0,
+    prior_scale=None,
+    ridge: float = 1e-8,
+) -> torch.Tensor:
+    """`project`'s objective minimised WITHOUT the consistency constraints, in closed form.
+
+    The same objective as `project` (eq. 8 in the metric ``X^T X + N diag(input_noise)``, the
+    ridge and the prior terms, with the same arguments and scalings), whose minimiser over all
+    of R^d solves one linear system: ``(M + r I + w W) theta = M theta_hat + w W prior``. It is
+    the posterior mean of a Gaussian prior on theta (the prior term) with the data's Gaussian
+    likelihood (eq. 8), and costs one ``d x d`` pseudo-inverse where `project` runs LBFGS: the
+    description prior's weight is chosen with it (`torchjfa.pipeline.identify`,
+    ``description_prior="auto"``).
+
+    Args:
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale,
+            ridge: as for `project`.
+
+    Returns:
+        ``(n_params,)`` float64 on theta_hat's device (not necessarily consistent).
+    """
+    layout = resolve_layout(layout)
+    if hasattr(theta_hat, "coef_"):
+        theta_hat = theta_hat.coef_
+    theta_hat = _check_theta(theta_hat, layout, "theta_hat").detach()
+    _check_options("virtual", ridge=ridge, prior_weight=prior_weight, tol=0.0, max_iter=1)
+    device, d = theta_hat.device, layout.n_params
+    M = _metric(moments, metric, input_noise, d, device)
+    prior, prior_w = _prior_terms(prior, prior_weight, prior_scale, layout, M)
+    m_unit = float(_power_of_two_scale(torch.diagonal(M).mean().reshape(1)))
+    th = theta_hat.to(torch.float64)
+    return Problem(th, M / m_unit, float(ridge), prior, float(prior_weight), prior_w).minimiser()
 
 
 def _check_options(parametrization: str, *, ridge, prior_weight, tol, max_iter) -> None:
