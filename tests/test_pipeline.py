@@ -418,6 +418,28 @@ def test_auto_prior_scores_each_block_by_the_closed_form_written_out():
         assert auto.prior_choice[w] == pytest.approx(expected[w], rel=1e-6 if w == 0 else 1e-8), w
 
 
+def test_auto_prior_reuses_the_jackknifes_refits(monkeypatch):
+    """With the jackknife on the same blocks, the prior's choice takes its leave-one-block-out
+    estimates instead of refitting: the same scores as the refits give (round-off)."""
+    import torchjfa._prior
+    from torchjfa.pipeline import PRIOR_BLOCKS
+
+    model, log = _two_link_log()
+    refit = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+
+    def no_refit(*args):
+        raise AssertionError("refitted although the jackknife's estimates were at hand")
+
+    monkeypatch.setattr(torchjfa._prior, "refit_without", no_refit)
+    reuse = identify(
+        model, log, estimator=OLS(fit_intercept=False), description_prior="auto",
+        jackknife=PRIOR_BLOCKS,
+    )  # fmt: skip
+    assert reuse.theta_hat_jackknife.shape[0] == PRIOR_BLOCKS
+    for w, v in refit.prior_choice.items():
+        assert reuse.prior_choice[w] == pytest.approx(v, rel=1e-9), w
+
+
 def test_description_prior_options():
     from torchjfa.estimators import OLS
     from torchjfa.pipeline import PRIOR_WEIGHTS

@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
-from .estimators._jackknife import refit_without
+from .estimators._jackknife import refit_totals, refit_without
 from .physical import parameter_scales, unconstrained_projection
 from .stats import Moments
 
@@ -85,7 +85,13 @@ def check_description_prior(value, options: Mapping, project: bool) -> bool:
 
 
 def choose_prior_weight(
-    estimator, folds: Sequence[Moments], model, noise, parametrization: str, options: Mapping
+    estimator,
+    folds: Sequence[Moments],
+    model,
+    noise,
+    parametrization: str,
+    options: Mapping,
+    coefs: torch.Tensor | None = None,
 ) -> dict[float, float]:
     """weight -> held-out RMS over the blocks, each predicted from a fit on the others with the
     projection's objective minimised in closed form (cross-validation over the training blocks).
@@ -95,19 +101,30 @@ def choose_prior_weight(
     constraints, the posterior mean of the description's Gaussian prior. It scores the prior's
     weight where the constrained projection would need one LBFGS run per block and weight: on
     the real Panda log (``scripts/real_panda.py``'s training part, 20 blocks, 7 weights) the
-    closed form's held-out RMS were 0.0932, 0.0928, 0.0918 and 0.0950 N m at weights 0, 1e3,
-    1e4 and 1e5 against the constrained projections' 0.0936, 0.0928, 0.0919 and 0.0941, the same
-    choice (1e4), in a fraction of a second instead of 250 s. ``parametrization`` is not used
-    (the constraints are what the closed form leaves out); ``options`` may set ``ridge``."""
+    closed form's held-out RMS of the weighted equations were 0.0932, 0.0927, 0.0918 and 0.0950
+    at weights 0, 1e3, 1e4 and 1e5 against the constrained projections' 0.0936, 0.0928, 0.0919
+    and 0.0941, the same choice (1e4), in a fraction of a second instead of 250 s. ``parametrization`` is not used
+    (the constraints are what the closed form leaves out); ``options`` may set ``ridge``.
+
+    ``coefs``: ``(K, n_params)`` the estimator's leave-one-block-out estimates on these folds
+    where they are at hand (the jackknife's, `torchjfa.pipeline.Estimate.theta_hat_jackknife`),
+    so that it is not refitted K more times; only when ``noise`` is given or the estimator
+    learns none (a fold's learned ``noise_x_`` needs the refit)."""
     del parametrization
+    learns_noise = noise is None and hasattr(estimator, "noise_x_")
+    if coefs is not None and (len(coefs) != len(folds) or learns_noise):
+        coefs = None
     rss = dict.fromkeys(PRIOR_WEIGHTS, 0.0)
     n = 0.0
     for k, held in enumerate(folds):
-        est, moments = refit_without(estimator, folds, k)
-        theta_hat = est.coef_.detach().to(torch.float64)
         fold_noise = noise
-        if fold_noise is None and hasattr(est, "noise_x_"):
-            fold_noise = est.noise_x_.detach().to(torch.float64)
+        if coefs is None:
+            est, moments = refit_without(estimator, folds, k)
+            theta_hat = est.coef_.detach().to(torch.float64)
+            if fold_noise is None and hasattr(est, "noise_x_"):
+                fold_noise = est.noise_x_.detach().to(torch.float64)
+        else:
+            theta_hat, moments = coefs[k].to(torch.float64), refit_totals(folds, k)
         for w in PRIOR_WEIGHTS:
             theta = unconstrained_projection(
                 theta_hat,

@@ -335,7 +335,13 @@ def project_estimate(
         if not folds or len(folds) < 2:
             raise ValueError("description_prior='auto' needs at least two training blocks")
         choice = choose_prior_weight(
-            fit.estimator, folds, model, fit.input_noise, parametrization, options
+            fit.estimator,
+            folds,
+            model,
+            fit.input_noise,
+            parametrization,
+            options,
+            coefs=fit.theta_hat_jackknife,
         )
         description_prior = pick_prior_weight(choice)
     if description_prior is not None:
