@@ -103,8 +103,9 @@ def choose_prior_weight(
     the real Panda log (``scripts/real_panda.py``'s training part, 20 blocks, 7 weights) the
     closed form's held-out RMS of the weighted equations were 0.0932, 0.0927, 0.0918 and 0.0950
     at weights 0, 1e3, 1e4 and 1e5 against the constrained projections' 0.0936, 0.0928, 0.0919
-    and 0.0941, the same choice (1e4), in a fraction of a second instead of 250 s. ``parametrization`` is not used
-    (the constraints are what the closed form leaves out); ``options`` may set ``ridge``.
+    and 0.0941, the same choice (1e4), in a fraction of a second instead of 250 s.
+    ``parametrization`` is not used (the constraints are what the closed form leaves out);
+    ``options`` may set ``ridge``.
 
     ``coefs``: ``(K, n_params)`` the estimator's leave-one-block-out estimates on these folds
     where they are at hand (the jackknife's, `torchjfa.pipeline.Estimate.theta_hat_jackknife`),

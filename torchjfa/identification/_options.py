@@ -125,11 +125,12 @@ class Options:
             parameters where the data are silent, with a weight chosen by cross-validation
             over the training blocks (``"auto"``). With ``project=False`` there is no
             projection and ``"auto"`` does nothing. On the real Panda log
-            (``scripts/real_panda.py``) it kept every link mass within 0.7-1.06x of the
+            (``scripts/real_panda.py``) it kept every link mass within 0.70-1.05x of the
             description's (three were outside [0.3x, 3x] without it), lowered the held-out
-            mean RMS by 1.5 % and raised the mean nMSE by 9 % (joints 5-7 lost, joint 2 gained;
-            docs/real-robot.md); in simulation, where the description is the truth, the scripts turn
-            it off (``description_prior=None``) so that it cannot lend them the answer.
+            mean RMS by 1.5 % and raised the mean nMSE by 9 % (joints 5-7 lost, joint 2
+            gained; docs/real-robot.md). In simulation, where the description is the truth,
+            the scripts turn it off (``description_prior=None``): it would lend them the
+            answer.
         projection_options: more keywords of `torchjfa.physical.project`.
 
     compute: `Compute` (chunking, device, processes, progress, the regressor's path).
