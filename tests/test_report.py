@@ -326,3 +326,27 @@ def test_what_the_data_determine_section(report):
     )
     summary = report.summary()["base_parameters"]
     assert summary["rank"] == b.rank and summary["counts"] == b.counts()
+
+
+def test_training_rms_says_when_it_is_of_the_weighted_equations():
+    """Unweighted, the header's training RMS is the torque residual's, in N m (by hand from the
+    rows); with joint weights it is that of the weighted equations and says so (not N m)."""
+    from torchjfa.estimators import OLS
+
+    model = RigidBodyModel.from_mjcf(model_path("head"))
+    sim = generate_log("head", n_samples=1500, seed=6)
+    log = JointLog(
+        t=sim.t, q=sim.q, qd=sim.qd, qdd=sim.qdd, tau=sim.tau, joint_names=sim.joint_names
+    )
+    train, valid = log.split(0.25)
+    plain = identify(model, train, estimator=OLS(fit_intercept=False))
+    md = make_report(plain, valid).markdown()
+    t = train.reorder(model.joint_names)
+    res = t.tau - model.regressor(t.q, t.qd, t.qdd) @ plain.theta
+    by_hand = float(res.pow(2).mean().sqrt())
+    assert f"- training RMS torque error: {by_hand:.4g} N m" in md
+    weights = torch.linspace(0.5, 2.0, model.n_dof, dtype=torch.float64)
+    weighted = identify(model, train, estimator=OLS(fit_intercept=False), joint_weights=weights)
+    md = make_report(weighted, valid).markdown()
+    assert "- training RMS of the weighted equations" in md
+    assert "training RMS torque error" not in md

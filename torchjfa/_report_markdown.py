@@ -189,7 +189,12 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
         *(f"- warning: {w}" for w in settings.get("warnings", ())),
         f"- physically consistent, identified: {verdict(report.consistency)}; "
         f"unconstrained estimate: {verdict(report.consistency_unconstrained)}",
-        f"- training RMS torque error: {s['train_rmse']:.4g} N m",
+        (
+            f"- training RMS torque error: {s['train_rmse']:.4g} N m"
+            if report.result.joint_weights is None
+            else "- training RMS of the weighted equations (each joint's residual times its "
+            f"weight): {s['train_rmse']:.4g}"
+        ),
         "",
     ]
 

@@ -141,7 +141,8 @@ class IdentificationResult:
 
     def rmse(self, theta=None) -> float:
         """Training RMS torque error ``sqrt(||tau - Y theta||^2 / (n_samples n_dof))`` from the
-        moments (N m), for ``theta`` (default `theta`)."""
+        moments (N m), for ``theta`` (default `theta`); with ``joint_weights``, of the weighted
+        equations (each joint's residual times its weight)."""
         theta = self.theta if theta is None else theta
         rss = self.moments.rss(theta)
         return float(torch.sqrt(rss.clamp_min(0.0) / self.moments.n))
