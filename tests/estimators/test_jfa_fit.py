@@ -186,9 +186,11 @@ def test_ml_closed_form_is_the_likelihoods_maximum():
     torch.testing.assert_close(known.noise_x_, noise)
 
 
-def _dense_newton_step(theta, g, H, lam, lb):
+def _dense_newton_step(theta, g, H, lam, lb, hold=None):
     """The damped Newton step through the dense P x P matrix (the reference)."""
     free = ~((theta <= lb) & (g <= 0))
+    if hold is not None:
+        free = free & ~hold
     M = -H * (free[..., :, None] & free[..., None, :])
     diag = torch.diagonal(M, dim1=-2, dim2=-1)
     scale = diag.abs().amax(-1, keepdim=True)
@@ -227,7 +229,7 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
             )[0]
             for lam in (1e-6, 1e-3, 1.0, 1e2):
                 lam_t = torch.full((1,), lam, dtype=F64)
-                trial, ok, gain, _ = jn.newton_step(theta, cv, lam_t, lb)
+                trial, ok, gain = jn.newton_step(theta, cv, lam_t, lb)[:3]
                 delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb)
                 A, a_psy = jn.block_part(theta, cv, lam_t, lb)[:2]
                 blocks_pd = bool((torch.linalg.eigvalsh(A) > 0).all() & (a_psy > 0).all())
@@ -238,6 +240,56 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
                     scale = float((ref - theta).abs().max())
                     torch.testing.assert_close(trial, ref, rtol=1e-9, atol=1e-9 * scale)
     assert {(True, True), (False, False)} <= verdicts  # both verdicts were tested
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(ard, fixed_x):
+    """Inputs whose <w_z> is held at 0 (`newton_step`'s ``hold``, the optimiser's pruned
+    inputs) leave the dense system, which is then factored on the other inputs alone: in a
+    batch of two problems with different inputs held (so the smaller one is padded), the step
+    is the dense Cholesky's with those coordinates held, and the system's order is the
+    largest number of inputs not held, plus one."""
+    d = 6
+    hp = _hyper(ard, fixed_x)
+    held = torch.zeros(2, d, dtype=torch.bool)
+    held[0, [1, 4]] = True
+    held[1, [0, 2, 3]] = True
+    thetas, pxs, stats = [], [], []
+    for seed in range(2):
+        X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
+        S = _standardised(X, y)
+        psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
+        st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
+        for _ in range(3):
+            es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
+            st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+        st[jb.MZ] = torch.where(held[seed], 0.0, st[jb.MZ])
+        thetas.append(jf._pack(st, psy, hp))
+        pxs.append(st[jb.PX])
+        stats.append(S)
+    theta, psx_c = torch.stack(thetas), torch.stack(pxs)
+    batch = jb.Stats(*(torch.stack(t) for t in zip(*stats, strict=True)))
+    cv = jn.derivatives(theta, batch, psx_c, hp)
+    H = jn.dense_hessian(cv)
+    P = theta.shape[-1]
+    hold = torch.nn.functional.pad(held, (0, P - d))
+    lb = torch.full((P,), -torch.inf, dtype=F64).expand(2, P)
+    taken = 0
+    for lam in (1e-3, 1.0, 1e2, 1e4, 1e6):
+        lam_t = torch.full((2,), lam, dtype=F64)
+        step = jn.newton_step(theta, cv, lam_t, lb, hold=hold)
+        assert step.size == d - 2 + 1
+        delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb, hold)
+        for i in range(2):
+            if bool(step.ok[i]):
+                taken += 1
+                assert bool(ok_ref[i])
+                ref = theta[i] + delta[i]
+                assert bool((step.trial[i, :d][held[i]] == 0).all())
+                scale = float((ref - theta[i]).abs().max())
+                torch.testing.assert_close(step.trial[i], ref, rtol=1e-9, atol=1e-9 * scale)
+    assert taken >= 5
 
 
 def _blocks_definite(theta, cv, lam: float, lb) -> bool:
@@ -409,3 +461,32 @@ def test_pruned_variances_are_stationary_where_both_loadings_are_pruned():
     th = jf._with_prunes(cand, torch.ones(d, dtype=torch.bool), hp).requires_grad_(True)
     (g,) = torch.autograd.grad(jf._theta_bound(th, *S, psx_c, hp), th)
     assert float(g[2 * d : 4 * d].abs().max()) < 1e-6
+
+
+@pytest.mark.parametrize("fixed_x", [False, True])
+def test_pruned_inputs_held_during_the_fit_end_at_the_full_bounds_stationary_point(fixed_x):
+    """The optimiser holds a pruned input's <w_z> at 0 while Newton converges on the others,
+    then frees it: the fit ends where no coordinate, the pruned inputs' <w_z> included, has a
+    Newton gain of its own above 1e-9 nats (one coordinate's g^2 / (2 |H_ii|)), and no <w_z>
+    is left at exactly 0 (held ones still would be)."""
+    d, n_irr = 8, 5
+    hp = _hyper("output", fixed_x)
+    X, y = _data(2000, d, seed=3, n_irrelevant=n_irr)
+    S = _standardised(X, y)
+    psx = torch.full((d,), 0.5 / 1.5, dtype=F64) if fixed_x else None
+    res = jf.fit(S, psx, hp, method="newton", max_iter=2000, tol=1e-12, coef_tol=1e-9)
+    assert int(res.reason) == 1  # converged
+    mz = res.st[jb.MZ]
+    pruned = mz.abs() < 1e-2
+    assert int(pruned.sum()) >= 3  # the irrelevant inputs were pruned
+    assert bool((mz != 0).all())
+    theta = jf._pack(res.st, res.psy, hp)[None]
+    batch = jb.Stats(*(t[None] for t in S))
+    cv = jn.derivatives(theta, batch, res.st[jb.PX][None], hp)
+    H = jn.dense_hessian(cv)[0]
+    lb = torch.full(theta.shape[-1:], -torch.inf, dtype=F64)  # the floors, as in the fit
+    lb[4 * d : (5 if fixed_x else 6) * d] = math.log(hp.floor)
+    lb[-1] = math.log(hp.floor_y)
+    free = ~((theta[0] <= lb * (1 - 1e-12)) & (cv.g[0] <= 0))
+    gains = cv.g[0] ** 2 / (2 * H.diagonal().abs().clamp_min(1e-300))
+    assert float(gains[free].max()) <= 1e-9

@@ -16,7 +16,14 @@ the state); `fit` is the entry point. Three methods:
   fitting note is tried on every input at once (``<w_zm> = 0``, and ``<w_xm> = 0`` with ``psi_xm
   = v_m`` when alpha is shared and psi_x free; ``c`` unchanged, the input's posterior variances
   moved to their optimum, where Newton would take several steps); the improving prunes are
-  kept together, or greedily one after another, whichever gains more, and Newton resumes.
+  kept together, or greedily one after another, whichever gains more, and Newton resumes
+  with the pruned inputs' ``<w_z>`` held at 0. No free coordinate then moves their
+  predictors, so the dense part of the Newton system is factored on the other inputs alone
+  (`_jfa_newton.newton_step`): ``O(a^3)`` for ``a`` inputs left, not ``O(d^3)``. A held
+  ``<w_z>`` is freed as soon as Newton alone would gain more than ``_RELEASE`` nats a sample
+  on it (`_jfa_newton.escapes`: an input the others' moves make relevant again), and all of
+  them when Newton has converged without them, so the fit ends at a stationary point of the
+  whole bound.
   Before a Newton trial the damping is raised until the blocks of the Newton matrix are
   positive definite, which needs no trial (`_jfa_newton.block_damping`). Every step,
   damped or a prune, is kept only if the bound does not fall, so the recorded bound never
@@ -41,7 +48,7 @@ import torch
 from .._threads import single_thread
 from . import _jfa_bound as jb
 from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
-from ._jfa_newton import block_damping, derivatives, newton_step
+from ._jfa_newton import block_damping, derivatives, escapes, newton_step
 
 REASONS = ("max_iter", "bound", "coef")
 _LM_START = 1e-3  # Levenberg-Marquardt damping, relative to the Hessian's diagonal
@@ -56,6 +63,8 @@ _SMALL_RUN = 5  # so many kept steps below the bound's resolution in a row end N
 _PRUNE_WARM = 5
 _PRUNE_EVERY = 3
 _PRUNE_GAIN = 1e-3
+# a held <w_z> is freed when Newton alone would gain more than _RELEASE nats a sample on it
+_RELEASE = 1e-5
 
 
 class Result(NamedTuple):
@@ -63,9 +72,10 @@ class Result(NamedTuple):
     bound after each iteration (NaN after a problem stopped), ``n_iter``, ``reason`` (index in
     `REASONS`), ``n_accepted`` (accepted Newton steps and prunes), ``n_estep`` (E-step
     equivalents, the cost in ``d x d`` mat-vecs: one per bound evaluation and per gradient
-    and Hessian, ``(d + 1)^3 / (6 d^2)`` per Newton solve (its Cholesky's flops over a
-    mat-vec's), ``r^3 / (6 d)`` per raise of the damping that refactors the ``r x r`` blocks
-    alone (`_jfa_newton.block_damping`), 3 per prune trial), all ``(*batch,)`` int64."""
+    and Hessian, ``n^3 / (6 d^2)`` per Newton solve (its Cholesky's flops over a mat-vec's,
+    ``n <= d + 1`` the order of the dense system factored: `_jfa_newton.Step`), ``r^3 / (6
+    d)`` per raise of the damping that refactors the ``r x r`` blocks alone
+    (`_jfa_newton.block_damping`), 3 per prune trial), all ``(*batch,)`` int64."""
 
     st: torch.Tensor
     psy: torch.Tensor
@@ -390,7 +400,12 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     units, log-variances), or when the next step's first-order gain is at round-off level, or
     when no damping finds an ascent; then the prune trial runs, and the problem stops
     (``"bound"``) when no prune gains. A prune trial also runs, on the schedule of
-    `_PRUNE_GAIN`, after a kept step that gained little; when it finds nothing, Newton goes on. With ``tol = coef_tol = 0`` it runs ``max_iter``
+    `_PRUNE_GAIN`, after a kept step that gained little; when it finds nothing, Newton goes on.
+    The inputs a kept prune zeroes have their ``<w_z>`` held at 0 (module docstring) until
+    Newton would move one (`_jfa_newton.escapes`) or a stop test finds no prune: then all are
+    freed, once, and Newton runs on to the stop test of the whole bound. A refused Newton
+    step (the matrix not proven definite) is no move, and its bound is not computed. With
+    ``tol = coef_tol = 0`` it runs ``max_iter``
     iterations: once a whole cycle left the state as it was (a fixed point of the iteration),
     the remaining ones repeat it and are recorded without being recomputed.
     """
@@ -415,7 +430,10 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     since = _int(L)  # Newton iterations since the last prune trial
     n_small = _int(L)  # consecutive kept steps below the bound's resolution
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
-    solve_cost = math.ceil((d + 1) ** 3 / (6 * d * d))
+    # pruned inputs whose <w_z> Newton holds at 0 until it converges without them (then
+    # released: `_run_newton`), and the problems whose held inputs were released
+    held = torch.zeros((B, d), dtype=torch.bool, device=theta.device)
+    released = torch.zeros_like(stale)
     block_cost = math.ceil(((P - 1) // d) ** 3 / (6 * d))  # d Cholesky factors of r x r
     hist = [L]
     while bool(live.any()) and len(hist) < max_iter:
@@ -444,25 +462,31 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             sub = Stats(*(t[idx] for t in flat))
             cv_i = type(cv)(*(t[idx] for t in cv))
             # the damping the block part needs, found without a trial (`block_damping`)
+            if bool(held[idx].any()):  # free the held <w_z> that Newton would move
+                held[idx] = held[idx] & ~escapes(theta[idx], cv_i, lb[idx], sub.n, _RELEASE)
+            hold_i = torch.nn.functional.pad(held[idx], (0, P - d))
             lam_i, nu_i, raises, blocks = block_damping(
-                theta[idx], cv_i, lam[idx], nu[idx], lb[idx], _LM_MAX
+                theta[idx], cv_i, lam[idx], nu[idx], lb[idx], _LM_MAX, hold_i
             )
             lam[idx], nu[idx] = lam_i, nu_i
             n_estep[idx] += raises * block_cost
-            th_i, ok_i, gain_i, pred_i = newton_step(theta[idx], cv_i, lam_i, lb[idx], blocks)
+            step = newton_step(theta[idx], cv_i, lam_i, lb[idx], blocks, hold_i)
             th_n, L_n = theta.clone(), L.clone()
-            th_n[idx] = th_i
-            L_n[idx] = _theta_bound(th_i, *sub, psx_c[idx], hp)
+            th_n[idx] = step.trial
             ok, gain, pred = torch.zeros_like(live), torch.zeros_like(L), torch.zeros_like(L)
-            ok[idx], gain[idx], pred[idx] = ok_i, gain_i, pred_i
-            n_estep = n_estep + newton.long() * solve_cost
+            ok[idx], gain[idx], pred[idx] = step.ok, step.gain, step.predicted
+            if bool(step.ok.any()):  # a refused step is no move: its bound is not computed
+                i_ok = idx[step.ok]
+                sub_ok = Stats(*(t[i_ok] for t in flat))
+                L_n[i_ok] = _theta_bound(step.trial[step.ok], *sub_ok, psx_c[i_ok], hp)
+            n_estep = n_estep + newton.long() * math.ceil(step.size**3 / (6 * d * d))
             # a step whose first-order gain the bound cannot resolve is judged by its model:
             # kept unless the bound falls by more than its round-off (NaN fails either way)
             small = newton & ok & (gain <= roundoff)
             accept = newton & ok & ((L_n > L) | (small & (L_n >= L - roundoff)))
             th_t = torch.where(newton[..., None], th_n, th_t)
             L_t = torch.where(newton, L_n, L_t)
-            n_estep = n_estep + newton.long()
+            n_estep = n_estep + ok.long()
         found = torch.zeros_like(live)
         if bool(pruning.any()):
             idx = pruning.nonzero()[:, 0]
@@ -477,6 +501,10 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             L_t = torch.where(pruning, L_p, L_t)
             n_estep = n_estep + pruning.long() * 3
         dL, dth = L_t - L, (th_t - theta).abs().amax(-1)
+        # a kept prune zeroes its inputs' <w_z>: held there until Newton converges (where
+        # <w_x> went to 0 too, no coordinate moves k_m and nothing needs holding)
+        pruned = (th_t[..., :d] == 0) & (th_t[..., d : 2 * d] != 0)
+        held = held | ((found & ~released)[..., None] & pruned)
         theta = torch.where(accept[..., None], th_t, theta)
         L = torch.where(accept, L_t, L)
         stale = stale | accept
@@ -501,13 +529,18 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         tiny = (small & ~accept) | (n_small >= _SMALL_RUN)  # nothing left the bound can see
         stuck = rejected & (lam > _LM_MAX)  # no damping finds an ascent: stationary
         failed = pruning & ~found & ~forced  # no prune gains at a stationary point: the optimum
+        # of the inputs not held; then Newton resumes with the held ones free, once
+        release = failed & held.any(-1)
+        held = held & ~release[..., None]
+        released = released | release
+        failed = failed & ~release
         since = torch.where(pruning, 0, since + newton.long())
         due = newton & ~(tiny | converged | stuck) & (n_iter >= _PRUNE_WARM)
         due = due & (since >= _PRUNE_EVERY) & accept & (dL <= _PRUNE_GAIN * flat.n)
         settled = (settled & ~pruning) | tiny | converged | stuck | due
         forced = due
-        lam = torch.where(found | stuck | failed | tiny, _LM_START, lam)
-        polished = polished & ~found
+        lam = torch.where(found | stuck | failed | tiny | release, _LM_START, lam)
+        polished = polished & ~(found | release)
         n_small = torch.where(tiny, 0, n_small)
         if stops:
             reason = torch.where(failed, 1, reason)

@@ -99,10 +99,13 @@ def dense_hessian(cv: Curvature) -> torch.Tensor:
     return H + J.mT @ _coupling(cv) @ J
 
 
-def _damping(theta, cv: Curvature, lam, lb):
-    """The free coordinates (``(B, P)`` bool: not at a lower bound with the gradient pointing
-    below it) and Marquardt's damping ``lam diag|H|`` of the free ones, ``(B, P)``."""
+def _damping(theta, cv: Curvature, lam, lb, hold=None):
+    """The free coordinates (``(B, P)`` bool: not held (``hold (B, P)`` bool, or None) and not
+    at a lower bound with the gradient pointing below it) and Marquardt's damping ``lam
+    diag|H|`` of the free ones, ``(B, P)``."""
     free = ~((theta <= lb) & (cv.g <= 0))
+    if hold is not None:
+        free = free & ~hold
     B, r, d = cv.jk.shape
     wcc = -cv.gcc[:, None, None]
     dk = -torch.diagonal(cv.hb, dim1=1, dim2=2).mT  # (B, r, d)
@@ -114,11 +117,12 @@ def _damping(theta, cv: Curvature, lam, lb):
     return free, torch.where(free, diag.clamp_min(1e-12 * scale), 1.0)
 
 
-def block_part(theta, cv: Curvature, lam, lb):
+def block_part(theta, cv: Curvature, lam, lb, hold=None):
     """The block-diagonal part ``A`` of the damped Newton matrix (`newton_step`): ``A (B, d, r,
     r)`` each input's block, ``a_psy (B,)`` that of ``log psi_y``, with ``free (B, P)``,
-    ``damp (B, P)`` (`_damping`) and ``lam_d = lam damp`` on the free coordinates."""
-    free, damp = _damping(theta, cv, lam, lb)
+    ``damp (B, P)`` (`_damping`, ``hold`` the coordinates held) and ``lam_d = lam damp`` on
+    the free coordinates."""
+    free, damp = _damping(theta, cv, lam, lb, hold)
     B, r, d = cv.jk.shape
     fb = free[:, : r * d].reshape(B, r, d)
     fp = free[:, -1]
@@ -147,12 +151,12 @@ class Blocks(NamedTuple):
     info: torch.Tensor
 
 
-def _blocks(theta, cv: Curvature, lam, lb) -> Blocks:
-    part = block_part(theta, cv, lam, lb)
+def _blocks(theta, cv: Curvature, lam, lb, hold=None) -> Blocks:
+    part = block_part(theta, cv, lam, lb, hold)
     return Blocks(*part, *torch.linalg.cholesky_ex(part[0]))
 
 
-def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float):
+def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float, hold=None):
     """Raise the damping by Nielsen's rule (``lam <- lam nu``, ``nu <- 2 nu``) until the block
     part ``A`` of the damped Newton matrix (`block_part`) is positive definite, or ``lam``
     passes ``lam_max``: ``(lam, nu, raises, blocks)``, ``raises (B,)`` the number of raises,
@@ -162,11 +166,11 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float):
     raises the damping; raising it here first costs one ``r x r`` Cholesky per input and raise
     instead of a refused trial (a ``(d + 1) x (d + 1)`` Cholesky and a bound). On the Fig. 2
     cells (``scripts/bench_fit_cost.py``) such refusals were 44 % of the trials. Only the
-    problems still indefinite are refactored.
+    problems still indefinite are refactored. ``hold``: the coordinates held (`_damping`).
     """
     lam, nu = lam.clone(), nu.clone()
     raises = torch.zeros(lam.shape, dtype=torch.int64, device=lam.device)
-    blocks = _blocks(theta, cv, lam, lb)
+    blocks = _blocks(theta, cv, lam, lb, hold)
     while True:
         bad = ~((blocks.info == 0).all(-1) & (blocks.a_psy > 0)) & (lam <= lam_max)
         if not bool(bad.any()):
@@ -175,19 +179,49 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float):
         lam[idx] = lam[idx] * nu[idx]
         nu[idx] = 2.0 * nu[idx]
         raises[idx] += 1
-        sub = _blocks(theta[idx], type(cv)(*(t[idx] for t in cv)), lam[idx], lb[idx])
+        sub = _blocks(
+            theta[idx],
+            type(cv)(*(t[idx] for t in cv)),
+            lam[idx],
+            lb[idx],
+            None if hold is None else hold[idx],
+        )
         for kept, fresh in zip(blocks, sub, strict=True):
             kept[idx] = fresh
 
 
-def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
-    """The projected, damped Newton step: ``(theta_trial, ok, gain, predicted)``.
+class Step(NamedTuple):
+    """A trial of `newton_step`: ``trial (B, P)`` the coordinates after the step, ``ok (B,)``
+    whether it was taken, ``gain (B,)`` its first-order gain, ``predicted (B,)`` the quadratic
+    model's gain, ``size`` the order of the dense system factored (at most ``d + 1``)."""
 
-    Coordinates at their lower bound with the gradient pointing below it are held; the others
-    solve ``(-H + lam diag|H|) delta = g`` (Marquardt's scaling); ``ok`` is False where the
-    structured solve below does not prove that matrix positive definite (then no step);
-    ``gain = g . delta`` (the first-order gain of the step), ``predicted`` the gain of the
-    quadratic model.
+    trial: torch.Tensor
+    ok: torch.Tensor
+    gain: torch.Tensor
+    predicted: torch.Tensor
+    size: int
+
+
+def _coupled(kkk: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """The rows of the dense system that couple: ``idx (B, n)`` the inputs whose predictor
+    moves (``kkk > 0``; padded, where a batch's problems differ, with inputs that do not, whose
+    rows of ``C`` are the identity's) and then ``d``, the row of ``c``; ``n``."""
+    B, d = kkk.shape
+    moving = kkk > 0
+    n = int(moving.sum(-1).max()) if d else 0
+    order = torch.argsort((~moving).to(torch.int8), dim=-1, stable=True)[:, :n]
+    last = torch.full((B, 1), d, dtype=order.dtype, device=order.device)
+    return torch.cat([order, last], -1), n + 1
+
+
+def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hold=None) -> Step:
+    """The projected, damped Newton step (`Step`).
+
+    Coordinates held (``hold (B, P)`` bool, or None) or at their lower bound with the gradient
+    pointing below it stay; the others solve ``(-H + lam diag|H|) delta = g`` (Marquardt's
+    scaling); ``ok`` is False where the structured solve below does not prove that matrix
+    positive definite (then no step); ``gain = g . delta`` (the first-order gain of the
+    step), ``predicted`` the gain of the quadratic model.
 
     The matrix is ``M = A + J^T W J`` (`Curvature`): ``A`` block-diagonal (each input's
     ``r x r`` block with the diagonal of the ``k``-``k`` coupling, ``(X^T X)_mm / c``
@@ -196,15 +230,21 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     part is diagonal), ``M^{-1} = A^{-1} - A^{-1} J^T (W - W L C^{-1} L^T W) J A^{-1}`` with
     ``C = I + L^T W L`` (Woodbury), and where ``A`` is positive definite, ``M`` is iff ``C`` is
     (the nonzero eigenvalues of ``L^T W L`` are those of ``A^{-1/2} J^T W J A^{-1/2}``): one
-    Cholesky of ``r x r`` per input and one of ``(d + 1) x (d + 1)``, ``O(d^3)`` in all.
+    Cholesky of ``r x r`` per input and one of ``C``, ``O(d^3)`` in all. An input whose
+    predictor ``k_m`` no free coordinate moves (``jk = 0`` on its free rows: a pruned input,
+    whose ``<w_z>`` is held at 0 or whose ``<w_z>`` and ``<w_x>`` are both 0) has a zero row
+    in ``L`` and the identity's row in ``C``, and its part of ``u`` below multiplies zero: so
+    ``C`` is factored on the rows of the other inputs and of ``c`` alone (`_coupled`, ``size``
+    rows), ``O(a^3 + r^3 d)`` for ``a`` inputs left, where most inputs are pruned.
     Where ``A`` is not positive definite the step is refused (``ok`` False) although ``M``
     may be: the optimiser raises the damping until ``A`` is positive definite before it
-    calls this (`block_damping`, no trial needed). A dense ``P x P`` Cholesky (``P = r d + 1``) to decide those
-    cases would cost about ``P^3 / (6 d^2)`` mat-vecs (2,800 at ``d = 77``), two hundred
-    trials' worth. ``blocks``: the block part at this ``lam``, if at hand (`block_damping`).
+    calls this (`block_damping`, no trial needed). A dense ``P x P`` Cholesky (``P = r d + 1``)
+    to decide those cases would cost about ``P^3 / (6 d^2)`` mat-vecs (2,800 at ``d = 77``),
+    two hundred trials' worth. ``blocks``: the block part at this ``lam``, if at hand
+    (`block_damping`, with the same ``hold``).
     """
     if blocks is None:
-        blocks = _blocks(theta, cv, lam, lb)
+        blocks = _blocks(theta, cv, lam, lb, hold)
     A, a_psy, free, damp, lam_d, chol, info = blocks
     g = cv.g * free
     B, r, d = cv.jk.shape
@@ -224,12 +264,14 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     s = torch.sqrt(kkk.clamp_min(0.0))
     lc = torch.where(kkk > 0, kkc / torch.where(kkk > 0, s, 1.0), 0.0)
     lcc = torch.sqrt((kcc - (lc * lc).sum(-1)).clamp_min(0.0))
-    # L = diag(sf) + e_d l^T (the arrowhead: l = (lc, 0)), so L^T W L and L x, L^T x cost O(d^2)
-    sf = torch.cat([s, lcc[:, None]], -1)  # (B, d + 1)
-    lv = torch.nn.functional.pad(lc, (0, 1))
-    W = -_coupling(cv)
-    W.diagonal(dim1=-2, dim2=-1)[:, :d] -= w_kk
-    wd, wdd = W[:, :, d], W[:, d, d]
+    # on the coupled rows (`_coupled`), the last one c's: L = diag(sf) + e_c l^T (the
+    # arrowhead: l = (lc, 0)), so L^T W L and L x, L^T x cost O(n^2)
+    idx, n = _coupled(kkk)
+    sf = torch.cat([s, lcc[:, None]], -1).gather(-1, idx)  # (B, n)
+    lv = torch.nn.functional.pad(lc, (0, 1)).gather(-1, idx)
+    W = _coupling_rows(cv, idx, w_kk)
+    b = b.gather(-1, idx)
+    wd, wdd = W[:, :, -1], W[:, -1, -1]
     swd = sf * wd
     C = sf[:, :, None] * W * sf[:, None, :]
     C = C + swd[:, :, None] * lv[:, None, :] + lv[:, :, None] * swd[:, None, :]
@@ -237,11 +279,12 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     C.diagonal(dim1=-2, dim2=-1).add_(1.0)
     chol_c, info_c = torch.linalg.cholesky_ex(C)
     Wb = (W @ b[..., None])[..., 0]
-    ltw = sf * Wb + lv * Wb[:, d, None]  # L^T W b
+    ltw = sf * Wb + lv * Wb[:, -1, None]  # L^T W b
     x = torch.cholesky_solve(ltw[..., None], chol_c)[..., 0]
     lx = sf * x
-    lx[:, d] += (lv * x).sum(-1)  # L x
-    u = Wb - (W @ lx[..., None])[..., 0]
+    lx[:, -1] += (lv * x).sum(-1)  # L x
+    u_c = Wb - (W @ lx[..., None])[..., 0]
+    u = torch.zeros((B, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
     step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
     delta = torch.cat(
         [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
@@ -253,4 +296,29 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None):
     step = trial - theta
     # the quadratic model's gain g.s - s^T M s / 2, with M s = g - lam D s on the free rows
     pred = 0.5 * ((g * step).sum(-1) + lam * (damp * step * step * free).sum(-1))
-    return trial, ok, (g * step).sum(-1), pred
+    return Step(trial, ok, (g * step).sum(-1), pred, n)
+
+
+def _coupling_rows(cv: Curvature, idx: torch.Tensor, w_kk: torch.Tensor) -> torch.Tensor:
+    """``W = -G`` less the diagonal ``w_kk`` moved into the blocks (`newton_step`), on the
+    rows and columns ``idx (B, n)`` (`_coupled`, the last one ``c``'s), ``(B, n, n)``."""
+    B, n = idx.shape
+    d = cv.xx.shape[-1]
+    ki = idx[:, :-1]
+    xx = cv.xx.gather(-2, ki[:, :, None].expand(B, n - 1, d))
+    xx = xx.gather(-1, ki[:, None, :].expand(B, n - 1, n - 1))
+    top = xx / cv.c[:, None, None]
+    top.diagonal(dim1=-2, dim2=-1).sub_(w_kk.gather(-1, ki))
+    kc = -cv.gkc.gather(-1, ki)
+    top = torch.cat([top, kc[..., None]], -1)
+    return torch.cat([top, torch.cat([kc, -cv.gcc[:, None]], -1)[:, None]], -2)
+
+
+def escapes(theta, cv: Curvature, lb, n, level: float) -> torch.Tensor:
+    """The inputs whose ``<w_z>`` alone, moved by Newton, would gain more than ``level n``
+    nats: ``g^2 / (2 |H|)`` along it (``g`` the gradient, ``|H|`` its Hessian diagonal of
+    `_damping`), ``(B, d)`` bool; ``n (B,)`` the samples."""
+    d = cv.jk.shape[-1]
+    _, diag = _damping(theta, cv, torch.zeros_like(n), lb)
+    gain = cv.g[:, :d] ** 2 / (2.0 * diag[:, :d])
+    return gain > level * n[:, None]
