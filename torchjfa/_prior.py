@@ -14,6 +14,7 @@ the consistency constraints); the projection then runs once, with the chosen wei
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import torch
 
@@ -50,16 +51,32 @@ def prior_options(model, moments: Moments, theta_hat: torch.Tensor, weight: floa
     (`torchjfa.physical.base_parameters`: above 100 sigma^2 for a tenth of the scale), so a
     weight of order 1 moves it by a fraction ``weight sigma^2 / eigenvalue`` only. `project`'s
     ``prior_weight`` is relative to ``s_p = sum_k p_k^2 M_kk / n_params``, hence the ratio."""
-    dev = moments.xtx.device
-    scale = parameter_scales(model.parameter_names, model.nominal_theta, moments).to(dev)
-    sigma2 = float(moments.rss(theta_hat.to(dev)).clamp_min(0.0) / moments.n)
-    s_p = float((scale.square() * torch.diagonal(moments.xtx)).sum()) / model.n_params
-    rel = weight * sigma2 / s_p if s_p > 0 else 0.0
-    return {
-        "prior": model.nominal_theta.to(dev),
-        "prior_scale": scale,
-        "prior_weight": rel,
-    }
+    return _PriorUnits.of(model, moments, theta_hat).options(weight)
+
+
+class _PriorUnits(NamedTuple):
+    """What `prior_options` needs of a fit, whatever the weight: the description's
+    ``prior`` and ``scale`` ``(n_params,)`` (`parameter_scales`) and ``per_weight``, the
+    ``prior_weight`` of weight 1 (``sigma^2 / s_p``)."""
+
+    prior: torch.Tensor
+    scale: torch.Tensor
+    per_weight: float
+
+    @classmethod
+    def of(cls, model, moments: Moments, theta_hat: torch.Tensor) -> _PriorUnits:
+        dev = moments.xtx.device
+        scale = parameter_scales(model.parameter_names, model.nominal_theta, moments).to(dev)
+        sigma2 = float(moments.rss(theta_hat.to(dev)).clamp_min(0.0) / moments.n)
+        s_p = float((scale.square() * torch.diagonal(moments.xtx)).sum()) / model.n_params
+        return cls(model.nominal_theta.to(dev), scale, sigma2 / s_p if s_p > 0 else 0.0)
+
+    def options(self, weight: float) -> dict:
+        return {
+            "prior": self.prior,
+            "prior_scale": self.scale,
+            "prior_weight": weight * self.per_weight,
+        }
 
 
 def check_description_prior(value, options: Mapping, project: bool) -> bool:
@@ -126,6 +143,7 @@ def choose_prior_weight(
                 fold_noise = est.noise_x_.detach().to(torch.float64)
         else:
             theta_hat, moments = coefs[k].to(torch.float64), refit_totals(folds, k)
+        units = _PriorUnits.of(model, moments, theta_hat)  # the fold's, for every weight
         for w in PRIOR_WEIGHTS:
             theta = unconstrained_projection(
                 theta_hat,
@@ -133,7 +151,7 @@ def choose_prior_weight(
                 moments=moments,
                 input_noise=None if fold_noise is None else fold_noise.to(moments.xtx.device),
                 ridge=options.get("ridge", 0.0 if w > 0 else 1e-8),
-                **prior_options(model, moments, theta_hat, w),
+                **units.options(w),
             )
             rss[w] += float(held.rss(theta.to(theta_hat.dtype)).clamp_min(0.0))
         n += float(held.n)

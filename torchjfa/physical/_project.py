@@ -286,23 +286,18 @@ def project(
         >>> result = project(theta_hat, layout=model, moments=moments)          # doctest: +SKIP
         >>> print(result)                                                       # doctest: +SKIP
     """
-    layout = resolve_layout(layout)
-    if hasattr(theta_hat, "coef_"):
-        theta_hat = theta_hat.coef_
-    theta_hat = _check_theta(theta_hat, layout, "theta_hat").detach()
     _check_options(
         parametrization, ridge=ridge, prior_weight=prior_weight, tol=tol, max_iter=max_iter
     )
-    device, d = theta_hat.device, layout.n_params
+    layout, theta_hat, M, prior, prior_w, m_unit = _objective_terms(
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale
+    )
     th = theta_hat.to(torch.float64)
-    M = _metric(moments, metric, input_noise, d, device)
-    prior, prior_w = _prior_terms(prior, prior_weight, prior_scale, layout, M)
     # the problem is solved in units where theta_hat's size (`_unit_of`) and M's mean diagonal
     # are ~1, then scaled back: eq. 8 and the consistent set are
     # invariant under theta -> s theta (s > 0), so the answer for s theta_hat is s times the
     # answer for theta_hat, however large or small s (the optimiser's floors, damping and
     # default body are O(1) numbers)
-    m_unit = float(_power_of_two_scale(torch.diagonal(M).mean().reshape(1)))
     M_n = M / m_unit
     unit = _unit_of(th, M_n, prior)
     th_n = th / unit
@@ -365,17 +360,35 @@ def unconstrained_projection(
     Returns:
         ``(n_params,)`` float64 on theta_hat's device (not necessarily consistent).
     """
+    _check_non_negative(ridge=ridge, prior_weight=prior_weight)
+    layout, theta_hat, M, prior, prior_w, m_unit = _objective_terms(
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale
+    )
+    th = theta_hat.to(torch.float64)
+    return Problem(th, M / m_unit, float(ridge), prior, float(prior_weight), prior_w).minimiser()
+
+
+def _objective_terms(theta_hat, layout, moments, metric, input_noise, prior, prior_weight, scale):
+    """The checked terms of `project`'s objective (shared with `unconstrained_projection`):
+    ``(layout, theta_hat, M, prior, prior_w, m_unit)``: the `ParameterLayout`, theta_hat
+    ``(n_params,)`` detached (a fitted estimator's ``coef_``), the metric ``M`` (`_metric`),
+    the prior and its per-parameter weights (`_prior_terms`), and ``m_unit``, the even power of
+    two nearest M's mean diagonal (the scale of M that the problem divides out, exactly)."""
     layout = resolve_layout(layout)
     if hasattr(theta_hat, "coef_"):
         theta_hat = theta_hat.coef_
     theta_hat = _check_theta(theta_hat, layout, "theta_hat").detach()
-    _check_options("virtual", ridge=ridge, prior_weight=prior_weight, tol=0.0, max_iter=1)
-    device, d = theta_hat.device, layout.n_params
-    M = _metric(moments, metric, input_noise, d, device)
-    prior, prior_w = _prior_terms(prior, prior_weight, prior_scale, layout, M)
+    M = _metric(moments, metric, input_noise, layout.n_params, theta_hat.device)
+    prior, prior_w = _prior_terms(prior, prior_weight, scale, layout, M)
     m_unit = float(_power_of_two_scale(torch.diagonal(M).mean().reshape(1)))
-    th = theta_hat.to(torch.float64)
-    return Problem(th, M / m_unit, float(ridge), prior, float(prior_weight), prior_w).minimiser()
+    return layout, theta_hat, M, prior, prior_w, m_unit
+
+
+def _check_non_negative(**values) -> None:
+    """ValueError naming the first of ``values`` that is negative (or NaN)."""
+    for name, value in values.items():
+        if not float(value) >= 0:
+            raise ValueError(f"{name} must be non-negative, got {value}")
 
 
 def _check_options(parametrization: str, *, ridge, prior_weight, tol, max_iter) -> None:
@@ -384,9 +397,7 @@ def _check_options(parametrization: str, *, ridge, prior_weight, tol, max_iter) 
         raise ValueError(
             f"parametrization must be one of {tuple(PARAMETRIZATIONS)}, got {parametrization!r}"
         )
-    for name, value in (("ridge", ridge), ("prior_weight", prior_weight), ("tol", tol)):
-        if not float(value) >= 0:
-            raise ValueError(f"{name} must be non-negative, got {value}")
+    _check_non_negative(ridge=ridge, prior_weight=prior_weight, tol=tol)
     if int(max_iter) < 1:
         raise ValueError(f"max_iter must be at least 1, got {max_iter}")
 
