@@ -490,3 +490,42 @@ def test_pruned_inputs_held_during_the_fit_end_at_the_full_bounds_stationary_poi
     free = ~((theta[0] <= lb * (1 - 1e-12)) & (cv.g[0] <= 0))
     gains = cv.g[0] ** 2 / (2 * H.diagonal().abs().clamp_min(1e-300))
     assert float(gains[free].max()) <= 1e-9
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_extend_doubles_a_step_while_the_bound_rises(ard):
+    """`_extend` on a batch of two mid-fit states, each with a damped Newton step: the state
+    it returns is the last of theta0 + t (theta1 - theta0), t = 1, 2, 4, before the bound
+    (computed here point by point) first fails to rise, with that bound, one bound counted per
+    point tried; a problem not selected is returned as it was."""
+    S, hp, theta, psx_c = _mid_fit(ard, False)
+    d = S.xy.shape[-1]
+    batch = jb.Stats(*(torch.stack([t, t]) for t in S))
+    th0 = torch.stack([theta, theta])
+    cv = jn.derivatives(th0, batch, torch.stack([psx_c, psx_c]), hp)
+    lb = torch.full(th0.shape, -torch.inf, dtype=F64)
+    lb[:, 4 * d : 6 * d] = math.log(hp.floor)
+    lb[:, -1] = math.log(hp.floor_y)
+    lb = torch.minimum(lb, th0)
+    pc = torch.stack([psx_c, psx_c])
+    extended = 0
+    for lam in (1e-1, 1.0, 10.0, 100.0):
+        th1 = jn.newton_step(th0, cv, torch.full((2,), lam, dtype=F64), lb).trial
+        L1 = jf._theta_bound(th1, *batch, pc, hp)
+        which = torch.tensor([True, False])
+        th, L, evals = jf._extend(th0, th1, L1, which, lb, batch, pc, hp)
+        assert torch.equal(th[1], th1[1]) and float(L[1]) == float(L1[1]) and int(evals[1]) == 0
+        best, L_best, n_eval = th1[0], float(L1[0]), 0
+        for t in (2.0, 4.0)[: jf._EXTEND_MAX]:
+            trial = torch.maximum(th0[0] + t * (th1[0] - th0[0]), lb[0])
+            L_t = float(jf._theta_bound(trial[None], *(x[:1] for x in batch), pc[:1], hp)[0])
+            n_eval += 1
+            if not L_t > L_best:
+                break
+            best, L_best = trial, L_t
+            extended += 1
+        torch.testing.assert_close(th[0], best, rtol=0, atol=0)
+        assert float(L[0]) == pytest.approx(L_best, rel=1e-14)
+        assert int(evals[0]) == n_eval
+        assert float(L[0]) >= float(L1[0])
+    assert extended >= 1  # some doubling rose, so the search went past t = 1
