@@ -25,11 +25,8 @@ the state); `fit` is the entry point. Three methods:
   them when Newton has converged without them, so the fit ends at a stationary point of the
   whole bound.
   Before a Newton trial the damping is raised until the blocks of the Newton matrix are
-  positive definite, which needs no trial (`_jfa_newton.block_damping`). A kept step that its
-  quadratic model predicted well (at least `_EXTEND_RHO` of the gain) is doubled, up to
-  `_EXTEND_MAX` times, while the bound rises (`_extend`: a bound a try, where the damping had
-  shortened the step). Every step, damped, doubled or a prune, is kept only if the bound does
-  not fall, so the recorded bound never
+  positive definite, which needs no trial (`_jfa_newton.block_damping`). Every step,
+  damped or a prune, is kept only if the bound does not fall, so the recorded bound never
   decreases (beyond its round-off); near an optimum the steps converge quadratically, so the
   answer does not depend on the path to it (the chunking of the data, a batch or a single fit)
   beyond round-off. The bound has many optima, though: on large problems with redundant inputs,
@@ -62,17 +59,12 @@ _ROUNDOFF = 64 * 2.0**-52  # relative round-off of the bound (a sum of O(d) term
 _SMALL_RUN = 5  # so many kept steps below the bound's resolution in a row end Newton's run
 # the prune move is tried at each convergence of Newton, and also after a kept Newton step that
 # gained at most _PRUNE_GAIN nats per sample, from the _PRUNE_WARM-th iteration on and at most
-# once in _PRUNE_EVERY Newton iterations, twice as long after each such trial that found
-# nothing (docs/benchmarks.md: what each schedule cost)
+# once in _PRUNE_EVERY Newton iterations (docs/benchmarks.md: what each schedule cost)
 _PRUNE_WARM = 5
 _PRUNE_EVERY = 3
 _PRUNE_GAIN = 1e-3
 # a held <w_z> is freed when Newton alone would gain more than _RELEASE nats a sample on it
 _RELEASE = 1e-5
-# a kept Newton step whose gain was at least _EXTEND_RHO of its model's is doubled, up to
-# _EXTEND_MAX times, while the bound rises (`_extend`)
-_EXTEND_RHO = 0.8
-_EXTEND_MAX = 2
 
 
 class Result(NamedTuple):
@@ -389,37 +381,6 @@ def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     )
 
 
-def _extend(theta0, theta1, L1, which, lb, S: Stats, psx_c, hp: Hyper):
-    """Extrapolate the kept steps ``theta0 -> theta1 (B, P)`` of the problems ``which (B,)``:
-    ``theta0 + t (theta1 - theta0)`` for ``t = 2, 4, ...`` (at most `_EXTEND_MAX` doublings,
-    projected onto the floors ``lb``), each kept while the bound rises, the first that does
-    not rise ending the problem's search. Returns ``(theta, L, evals)``: the new state, its
-    bound (``L1`` where nothing rose) and each problem's number of bounds computed.
-
-    A damped step is short where the damping holds the model's trust region small (after an
-    indefinite matrix raised it) although the bound keeps rising along it: on the Fig. 2
-    cells (``scripts/bench_fit_cost.py``) a fit spent up to a hundred such steps of tens of
-    nats each. A doubling costs one bound (one E-step equivalent) where a step costs a
-    Newton solve and the derivatives."""
-    theta, L = theta1.clone(), L1.clone()
-    evals = torch.zeros(L.shape, dtype=torch.int64, device=L.device)
-    step = theta1 - theta0
-    go, t = which.clone(), 1.0
-    for _ in range(_EXTEND_MAX):
-        t *= 2.0
-        idx = go.nonzero()[:, 0]
-        trial = torch.maximum(theta0[idx] + t * step[idx], lb[idx])
-        L_t = _theta_bound(trial, *(x[idx] for x in S), psx_c[idx], hp)
-        evals[idx] += 1
-        up = L_t > L[idx]
-        theta[idx[up]], L[idx[up]] = trial[up], L_t[up]
-        go = torch.zeros_like(go)
-        go[idx[up]] = True
-        if not bool(go.any()):
-            break
-    return theta, L, evals
-
-
 def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
     """`_run_newton` on one thread (`torchjfa._threads.single_thread`): the optimiser's kernels
     are small (``r x r`` blocks, ``(d + 1) x (d + 1)`` matrices); on a busy 2-core machine,
@@ -439,9 +400,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     units, log-variances), or when the next step's first-order gain is at round-off level, or
     when no damping finds an ascent; then the prune trial runs, and the problem stops
     (``"bound"``) when no prune gains. A prune trial also runs, on the schedule of
-    `_PRUNE_GAIN`, after a kept step that gained little; when it finds nothing, Newton goes on
-    and the next scheduled trial waits twice as long. A kept step that its quadratic model
-    predicted well is extrapolated while the bound rises (`_extend`).
+    `_PRUNE_GAIN`, after a kept step that gained little; when it finds nothing, Newton goes on.
     The inputs a kept prune zeroes have their ``<w_z>`` held at 0 (module docstring) until
     Newton would move one (`_jfa_newton.escapes`) or a stop test finds no prune: then all are
     freed, once, and Newton runs on to the stop test of the whole bound. A refused Newton
@@ -469,7 +428,6 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     polished = torch.zeros_like(stale)  # the damping went to its floor since the last prune
     forced = torch.zeros_like(stale)  # the coming prune trial is a scheduled one, not a stop test
     since = _int(L)  # Newton iterations since the last prune trial
-    every = _int(L, _PRUNE_EVERY)
     n_small = _int(L)  # consecutive kept steps below the bound's resolution
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
     # pruned inputs whose <w_z> Newton holds at 0 until it converges without them (then
@@ -547,7 +505,6 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         # <w_x> went to 0 too, no coordinate moves k_m and nothing needs holding)
         pruned = (th_t[..., :d] == 0) & (th_t[..., d : 2 * d] != 0)
         held = held | ((found & ~released)[..., None] & pruned)
-        theta_prev = theta
         theta = torch.where(accept[..., None], th_t, theta)
         L = torch.where(accept, L_t, L)
         stale = stale | accept
@@ -562,11 +519,6 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         lam = torch.where(rejected, lam * nu, lam)
         nu = torch.where(rejected, 2.0 * nu, torch.where(newton & accept, 2.0, nu))
         converged = newton & accept & (dL <= thr) & (dth <= coef_tol) & stops
-        if bool(newton.any()):  # a step its model predicted well, doubled while it gains
-            ext = newton & accept & (rho > _EXTEND_RHO) & ~converged & (dL > thr)
-            if bool(ext.any()):
-                theta, L, evals = _extend(theta_prev, theta, L, ext, lb, flat, psx_c, hp)
-                n_estep = n_estep + evals
         # damped steps are short along weakly curved directions (the psi_x / w_x^2 ridge):
         # before a convergence counts, Newton runs on with the damping at its floor
         polish = (converged | (small & accept)) & ~polished & (lam > _LM_POLISH)
@@ -583,11 +535,8 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         released = released | release
         failed = failed & ~release
         since = torch.where(pruning, 0, since + newton.long())
-        # a scheduled trial that found nothing waits twice as long for the next one
-        every = torch.where(pruning & forced & ~found, 2 * every, every)
-        every = torch.where(found, _PRUNE_EVERY, every)
         due = newton & ~(tiny | converged | stuck) & (n_iter >= _PRUNE_WARM)
-        due = due & (since >= every) & accept & (dL <= _PRUNE_GAIN * flat.n)
+        due = due & (since >= _PRUNE_EVERY) & accept & (dL <= _PRUNE_GAIN * flat.n)
         settled = (settled & ~pruning) | tiny | converged | stuck | due
         forced = due
         lam = torch.where(found | stuck | failed | tiny | release, _LM_START, lam)
