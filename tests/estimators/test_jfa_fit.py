@@ -186,6 +186,21 @@ def test_ml_closed_form_is_the_likelihoods_maximum():
     torch.testing.assert_close(known.noise_x_, noise)
 
 
+def _early_states(d, seed, hp, fixed_x, sweeps):
+    """``(S, st, psy)`` after each of the first ``sweeps`` plain EM sweeps that follow the
+    first one, on 300 rows with two irrelevant inputs (one redundant if ``seed == 1``), psi_x
+    fixed at 0.3 if ``fixed_x``: states early in a fit, where the Newton matrix is often
+    indefinite at small damping."""
+    X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
+    S = _standardised(X, y)
+    psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
+    st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
+    for _ in range(sweeps):
+        es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
+        st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+        yield S, st, psy
+
+
 def _dense_newton_step(theta, g, H, lam, lb, hold=None):
     """The damped Newton step through the dense P x P matrix (the reference)."""
     free = ~((theta <= lb) & (g <= 0))
@@ -212,13 +227,7 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
     hp = _hyper(ard, fixed_x)
     verdicts = set()
     for seed in range(3):
-        X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
-        S = _standardised(X, y)
-        psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
-        st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
-        for it in range(4):
-            es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
-            st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+        for it, (S, st, psy) in enumerate(_early_states(d, seed, hp, fixed_x, 4)):
             theta = jf._pack(st, psy, hp)[None]
             batch = jb.Stats(*(t[None] for t in S))
             cv = jn.derivatives(theta, batch, st[jb.PX][None], hp)
@@ -257,13 +266,8 @@ def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(ard, fix
     held[1, [0, 2, 3]] = True
     thetas, pxs, stats = [], [], []
     for seed in range(2):
-        X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
-        S = _standardised(X, y)
-        psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
-        st, psy = jf._first_sweep(S, *jf.initial_state(S, psx, hp), hp)
-        for _ in range(3):
-            es, R, c, S_ee, _ = jb.estep(S, st, psy, hp)
-            st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
+        S, st, psy = list(_early_states(d, seed, hp, fixed_x, 3))[-1]
+        st = st.clone()
         st[jb.MZ] = torch.where(held[seed], 0.0, st[jb.MZ])
         thetas.append(jf._pack(st, psy, hp))
         pxs.append(st[jb.PX])
