@@ -17,8 +17,8 @@ the state); `fit` is the entry point. Three methods:
   = v_m`` when alpha is shared and psi_x free; ``c`` unchanged, the input's posterior variances
   moved to their optimum, where Newton would take several steps); the improving prunes are
   kept together, or greedily one after another, whichever gains more, and Newton resumes
-  with the pruned inputs' ``<w_z>`` held at 0. No free coordinate then moves their
-  predictors, so the dense part of the Newton system is factored on the other inputs alone
+  with the pruned inputs' ``<w_z>`` held at 0 (where ``<w_x>`` was pruned too, nothing needs
+  holding). No free coordinate then moves their predictors, so the dense part of the Newton system is factored on the other inputs alone
   (`_jfa_newton.newton_step`): ``O(a^3)`` for ``a`` inputs left, not ``O(d^3)``. A held
   ``<w_z>`` is freed as soon as Newton alone would gain more than ``_RELEASE`` nats a sample
   on it (`_jfa_newton.escapes`: an input the others' moves make relevant again), and all of
@@ -430,8 +430,8 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     since = _int(L)  # Newton iterations since the last prune trial
     n_small = _int(L)  # consecutive kept steps below the bound's resolution
     reason, n_iter, n_acc, n_estep = _int(L), _int(L, 1), _int(L), _int(L, 1)
-    # pruned inputs whose <w_z> Newton holds at 0 until it converges without them (then
-    # released: `_run_newton`), and the problems whose held inputs were released
+    # pruned inputs whose <w_z> Newton holds at 0 until it converges without them (then all
+    # are freed, once), and the problems whose held inputs were freed so
     held = torch.zeros((B, d), dtype=torch.bool, device=theta.device)
     released = torch.zeros_like(stale)
     block_cost = math.ceil(((P - 1) // d) ** 3 / (6 * d))  # d Cholesky factors of r x r
