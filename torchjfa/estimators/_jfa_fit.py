@@ -18,8 +18,9 @@ the state); `fit` is the entry point. Three methods:
   moved to their optimum, where Newton would take several steps); the improving prunes are
   kept together, or greedily one after another, whichever gains more, and Newton resumes
   with the pruned inputs' ``<w_z>`` held at 0 (where ``<w_x>`` was pruned too, nothing needs
-  holding). No free coordinate then moves their predictors, so the dense part of the Newton system is factored on the other inputs alone
-  (`_jfa_newton.newton_step`): ``O(a^3)`` for ``a`` inputs left, not ``O(d^3)``. A held
+  holding). No free coordinate then moves their predictors, so the dense part of the Newton
+  system is factored on the other inputs alone (`_jfa_newton.newton_step`): ``O(a^3)`` for
+  ``a`` inputs left, not ``O(d^3)``. A held
   ``<w_z>`` is freed as soon as Newton alone would gain more than ``_RELEASE`` nats a sample
   on it (`_jfa_newton.escapes`: an input the others' moves make relevant again), and all of
   them when Newton has converged without them, so the fit ends at a stationary point of the

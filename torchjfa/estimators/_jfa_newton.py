@@ -208,7 +208,7 @@ def _coupled(kkk: torch.Tensor) -> tuple[torch.Tensor, int]:
     rows of ``C`` are the identity's) and then ``d``, the row of ``c``; ``n``."""
     B, d = kkk.shape
     moving = kkk > 0
-    n = int(moving.sum(-1).max()) if d else 0
+    n = int(moving.sum(-1).max())
     order = torch.argsort((~moving).to(torch.int8), dim=-1, stable=True)[:, :n]
     last = torch.full((B, 1), d, dtype=order.dtype, device=order.device)
     return torch.cat([order, last], -1), n + 1
