@@ -494,3 +494,19 @@ def test_pruned_inputs_held_during_the_fit_end_at_the_full_bounds_stationary_poi
     free = ~((theta[0] <= lb * (1 - 1e-12)) & (cv.g[0] <= 0))
     gains = cv.g[0] ** 2 / (2 * H.diagonal().abs().clamp_min(1e-300))
     assert float(gains[free].max()) <= 1e-9
+
+
+@pytest.mark.parametrize("pick", [[True, True, True, True], [False, True, False, True]])
+def test_the_optimisers_row_selection_is_plain_indexing(pick):
+    mask = torch.tensor(pick)
+    t = torch.arange(12.0).reshape(4, 3)
+    rows = jf._Rows(mask)
+    assert torch.equal(rows.take(t), t[mask])
+    S = jb.Stats(*(torch.randn(4, *shape) for shape in ((2, 2), (2,), (), ())))
+    assert all(torch.equal(a, b[mask]) for a, b in zip(rows.stats(S), S, strict=True))
+    got, want = t.clone(), t.clone()
+    rows.put(got, -t[mask])
+    want[mask] = -t[mask]
+    assert torch.equal(got, want)
+    inner = torch.tensor([True, False] * (int(mask.sum()) // 2))
+    assert torch.equal(rows.sub(inner).take(t), t[mask][inner])

@@ -154,6 +154,35 @@ def fit(
     raise ValueError(f"no method {method!r} for {'Bayesian' if hp.bayes else 'ML'} JFA")
 
 
+class _Rows:
+    """The problems of a batch that ``mask (B,)`` selects: ``take`` their rows of a tensor and
+    ``put`` rows back. Where it selects all of them (a single fit, most iterations of a
+    batch), both are the tensor itself: indexing by a tensor copies, and ``d x d`` statistics
+    each iteration."""
+
+    def __init__(self, mask: torch.Tensor) -> None:
+        self.idx = None if bool(mask.all()) else mask.nonzero()[:, 0]
+
+    def take(self, t: torch.Tensor) -> torch.Tensor:
+        return t if self.idx is None else t[self.idx]
+
+    def stats(self, S: Stats) -> Stats:
+        return S if self.idx is None else Stats(*(t[self.idx] for t in S))
+
+    def put(self, dst: torch.Tensor, rows: torch.Tensor) -> None:
+        if self.idx is None:
+            dst.copy_(rows)
+        else:
+            dst[self.idx] = rows
+
+    def sub(self, mask: torch.Tensor) -> _Rows:
+        """The rows that ``mask`` (over these rows) selects, as rows of the whole batch."""
+        out = _Rows(mask)
+        if self.idx is not None:
+            out.idx = self.idx[mask]
+        return out
+
+
 def _int(like: torch.Tensor, value: int = 0) -> torch.Tensor:
     return torch.full(like.shape, value, dtype=torch.int64, device=like.device)
 
@@ -442,14 +471,13 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         newton, pruning = live & ~settled, live & settled
         need = newton & stale
         if bool(need.any()):
-            idx = need.nonzero()[:, 0]
-            sub = Stats(*(t[idx] for t in flat))
-            new = derivatives(theta[idx], sub, psx_c[idx], hp)
-            if cv is None:  # the first iteration differentiates every problem
+            rows = _Rows(need)
+            new = derivatives(rows.take(theta), rows.stats(flat), rows.take(psx_c), hp)
+            if cv is None or rows.idx is None:  # every problem (always the first time)
                 cv = type(new)(*(t.contiguous() for t in new))
             else:
                 for kept, fresh in zip(cv, new, strict=True):
-                    kept[idx] = fresh
+                    rows.put(kept, fresh)
             stale = stale & ~need
             n_estep = n_estep + need.long()
         level = torch.maximum(L.abs(), scale)
@@ -459,27 +487,31 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         small = torch.zeros_like(live)
         if bool(newton.any()):
             # on the problems taking a Newton step only (the others wait or are done)
-            idx = newton.nonzero()[:, 0]
-            sub = Stats(*(t[idx] for t in flat))
-            cv_i = type(cv)(*(t[idx] for t in cv))
+            rows = _Rows(newton)
+            sub, th_i, lb_i = rows.stats(flat), rows.take(theta), rows.take(lb)
+            cv_i = type(cv)(*(rows.take(t) for t in cv))
             # the damping the block part needs, found without a trial (`block_damping`)
-            if bool(held[idx].any()):  # free the held <w_z> that Newton would move
-                held[idx] = held[idx] & ~escapes(theta[idx], cv_i, lb[idx], sub.n, _RELEASE)
-            hold_i = torch.nn.functional.pad(held[idx], (0, P - d))
+            held_i = rows.take(held)
+            if bool(held_i.any()):  # free the held <w_z> that Newton would move
+                rows.put(held, held_i & ~escapes(th_i, cv_i, lb_i, sub.n, _RELEASE))
+            hold_i = torch.nn.functional.pad(rows.take(held), (0, P - d))
             lam_i, nu_i, raises, blocks = block_damping(
-                theta[idx], cv_i, lam[idx], nu[idx], lb[idx], _LM_MAX, hold_i
+                th_i, cv_i, rows.take(lam), rows.take(nu), lb_i, _LM_MAX, hold_i
             )
-            lam[idx], nu[idx] = lam_i, nu_i
-            n_estep[idx] += raises * block_cost
-            step = newton_step(theta[idx], cv_i, lam_i, lb[idx], blocks, hold_i)
+            rows.put(lam, lam_i)
+            rows.put(nu, nu_i)
+            rows.put(n_estep, rows.take(n_estep) + raises * block_cost)
+            step = newton_step(th_i, cv_i, lam_i, lb_i, blocks, hold_i)
             th_n, L_n = theta.clone(), L.clone()
-            th_n[idx] = step.trial
+            rows.put(th_n, step.trial)
             ok, gain, pred = torch.zeros_like(live), torch.zeros_like(L), torch.zeros_like(L)
-            ok[idx], gain[idx], pred[idx] = step.ok, step.gain, step.predicted
+            rows.put(ok, step.ok)
+            rows.put(gain, step.gain)
+            rows.put(pred, step.predicted)
             if bool(step.ok.any()):  # a refused step is no move: its bound is not computed
-                i_ok = idx[step.ok]
-                sub_ok = Stats(*(t[i_ok] for t in flat))
-                L_n[i_ok] = _theta_bound(step.trial[step.ok], *sub_ok, psx_c[i_ok], hp)
+                good = rows.sub(step.ok)
+                trial = step.trial if good.idx is None else step.trial[step.ok]
+                good.put(L_n, _theta_bound(trial, *good.stats(flat), good.take(psx_c), hp))
             n_estep = n_estep + newton.long() * math.ceil(step.size**3 / (6 * d * d))
             # a step whose first-order gain the bound cannot resolve is judged by its model:
             # kept unless the bound falls by more than its round-off (NaN fails either way)
@@ -490,12 +522,14 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             n_estep = n_estep + ok.long()
         found = torch.zeros_like(live)
         if bool(pruning.any()):
-            idx = pruning.nonzero()[:, 0]
-            sub = Stats(*(t[idx] for t in flat))
-            th_i, L_i, found_i = _prune_trial(theta[idx], sub, psx_c[idx], hp, thr[idx])
+            rows = _Rows(pruning)
+            th_i, L_i, found_i = _prune_trial(
+                rows.take(theta), rows.stats(flat), rows.take(psx_c), hp, rows.take(thr)
+            )
             th_p, L_p = theta.clone(), L.clone()
-            th_p[idx], L_p[idx] = th_i, L_i
-            found[idx] = found_i
+            rows.put(th_p, th_i)
+            rows.put(L_p, L_i)
+            rows.put(found, found_i)
             found = pruning & found & (L_p > L)
             accept = accept | found
             th_t = torch.where(pruning[..., None], th_p, th_t)
