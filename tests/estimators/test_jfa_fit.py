@@ -253,12 +253,17 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
 
 @pytest.mark.parametrize("ard", ["shared", "output"])
 @pytest.mark.parametrize("fixed_x", [False, True])
-def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(ard, fixed_x):
+@pytest.mark.parametrize("ladder, orders", [(1, [5, 4]), (8, [7, 7])])
+def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(
+    ard, fixed_x, ladder, orders, monkeypatch
+):
     """Inputs whose <w_z> is held at 0 (`newton_step`'s ``hold``, the optimiser's pruned
     inputs) leave the dense system, which is then factored on the other inputs alone: in a
-    batch of two problems with different inputs held (so the smaller one is padded), the step
-    is the dense Cholesky's with those coordinates held, and the system's order is the
-    largest number of inputs not held, plus one."""
+    batch of two problems with 4 and 3 inputs not held, the step is the dense Cholesky's with
+    those coordinates held. Each system's order is its own count plus one, rounded up to the
+    ladder (at most d + 1: with a ladder of 8 both are padded to 7), and each problem's step
+    in the batch is bitwise the step it gets alone."""
+    monkeypatch.setattr(jn, "_LADDER", ladder)
     d = 6
     hp = _hyper(ard, fixed_x)
     held = torch.zeros(2, d, dtype=torch.bool)
@@ -283,7 +288,14 @@ def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(ard, fix
     for lam in (1e-3, 1.0, 1e2, 1e4, 1e6):
         lam_t = torch.full((2,), lam, dtype=F64)
         step = jn.newton_step(theta, cv, lam_t, lb, hold=hold)
-        assert step.size == d - 2 + 1
+        assert step.size.tolist() == orders
+        for i in range(2):
+            cv_i = type(cv)(*(t[i : i + 1] for t in cv))
+            alone = jn.newton_step(
+                theta[i : i + 1], cv_i, lam_t[i : i + 1], lb[:1], hold=hold[i : i + 1]
+            )
+            for a, b in zip(alone, step, strict=True):
+                assert torch.equal(a[0], b[i])
         delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb, hold)
         for i in range(2):
             if bool(step.ok[i]):
@@ -510,3 +522,13 @@ def test_the_optimisers_row_selection_is_plain_indexing(pick):
     assert torch.equal(got, want)
     inner = torch.tensor([True, False] * (int(mask.sum()) // 2))
     assert torch.equal(rows.sub(inner).take(t), t[mask][inner])
+
+
+def test_matvec_of_a_batch_is_each_problems_own_bitwise():
+    g = torch.Generator().manual_seed(3)
+    A = torch.randn(5, 33, 33, generator=g, dtype=F64)
+    x = torch.randn(5, 33, generator=g, dtype=F64)
+    full = jb.matvec(A, x)
+    torch.testing.assert_close(full, (A @ x[..., None])[..., 0], rtol=1e-13, atol=1e-13)
+    for i in range(5):
+        assert torch.equal(jb.matvec(A[i : i + 1], x[i : i + 1])[0], full[i])

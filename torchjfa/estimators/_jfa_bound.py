@@ -63,6 +63,13 @@ class Stats(NamedTuple):
         return torch.diagonal(self.xx, dim1=-2, dim2=-1)
 
 
+def matvec(A: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``A x`` for ``A (*batch, m, n)``, ``x (*batch, n)``: ``(*batch, m)``, as products summed
+    along each row, whose order does not depend on the batch (a batched ``@`` runs other BLAS
+    kernels for other batch sizes, so a batch and a single fit would round differently)."""
+    return (A * x[..., None, :]).sum(-1)
+
+
 def bound_const(n: torch.Tensor, d: int, hp: Hyper) -> torch.Tensor:
     """State-independent terms of the bound (the 2 pi's, the Gamma prior, the entropies).
 
@@ -123,7 +130,7 @@ def estep(S: Stats, st: torch.Tensor, psy: torch.Tensor, hp: Hyper):
     k = E * mx * i1 * invD  # the noisy-input predictor, eq. (3)
     R = invD.sum(-1)
     c = psy + R
-    s_xe = S.xy - (S.xx @ k[..., None])[..., 0]  # X^T e, the one d x d product
+    s_xe = S.xy - matvec(S.xx, k)  # X^T e, the one d x d product
     S_ee = S.yy - (k * (S.xy + s_xe)).sum(-1)
     rho = invD / c[..., None]
     rs = rho * s_xe
@@ -236,7 +243,7 @@ def reduced_bound(
     k = mz * mx / (tau * v)
     q = psz + mz * mz * psx / (tau * v)
     c = psy + q.sum(-1)
-    S_ee = S.yy - 2.0 * (k * S.xy).sum(-1) + (k * (S.xx @ k[..., None])[..., 0]).sum(-1)
+    S_ee = S.yy - 2.0 * (k * S.xy).sum(-1) + (k * matvec(S.xx, k)).sum(-1)
     d = mz.shape[-1]
     L = (
         -0.5 * n * (torch.log(v).sum(-1) + torch.log(tau).sum(-1) + torch.log(c))

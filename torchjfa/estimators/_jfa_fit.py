@@ -32,7 +32,8 @@ the state); `fit` is the entry point. Three methods:
   answer does not depend on the path to it (the chunking of the data, a batch or a single fit)
   beyond round-off. The bound has many optima, though: on large problems with redundant inputs,
   round-off amplified near saddles early in the path can lead two chunkings to different ones
-  (``docs/benchmarks.md``).
+  (``docs/benchmarks.md``). A batch and a single fit round alike (products as row sums, each
+  problem's dense system at an order of its own: `_jfa_newton._order`), so they take one path.
 - ``"closed"`` (maximum likelihood only): the likelihood depends on the state only through
   each input's variance ``v = diag(X^T X) / N``, the predictor ``k`` (OLS) and the residual
   variance ``c = RSS / N``, so its maximum is known; the state returned is one point of the
@@ -363,7 +364,7 @@ def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
     k = mz * mx / (tau * v)
     q = psz + mz * mz * psx / (tau * v)
     c = psy + q.sum(-1)
-    s_xe = S.xy - (S.xx @ k[..., None])[..., 0]
+    s_xe = S.xy - jb.matvec(S.xx, k)
     both = hp.shared and not hp.fixed_x  # prune w_x too (psi_x takes v), else w_z alone
     zero = torch.zeros_like(mz)
     new = {"mz": zero, "psz": q}
@@ -512,7 +513,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
                 good = rows.sub(step.ok)
                 trial = step.trial if good.idx is None else step.trial[step.ok]
                 good.put(L_n, _theta_bound(trial, *good.stats(flat), good.take(psx_c), hp))
-            n_estep = n_estep + newton.long() * math.ceil(step.size**3 / (6 * d * d))
+            rows.put(n_estep, rows.take(n_estep) + -(-(step.size**3) // (6 * d * d)))
             # a step whose first-order gain the bound cannot resolve is judged by its model:
             # kept unless the bound falls by more than its round-off (NaN fails either way)
             small = newton & ok & (gain <= roundoff)

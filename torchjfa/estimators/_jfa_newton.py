@@ -53,7 +53,7 @@ def derivatives(theta, S: Stats, psx_c, hp: Hyper) -> Curvature:
     own, k, q = jb.input_jets(theta[:, : r * d].reshape(B, r, d), psx_c, S.n, S.dg, hp)
     psy = torch.exp(theta[:, -1])
     c = psy + q.v.sum(-1)
-    s_xe = S.xy - (S.xx @ k.v[..., None])[..., 0]
+    s_xe = S.xy - jb.matvec(S.xx, k.v)
     S_ee = S.yy - (k.v * (S.xy + s_xe)).sum(-1)
     g_k = s_xe / c[:, None]  # (B, d)
     g_c = -0.5 * S.n / c + 0.5 * S_ee / (c * c)
@@ -193,25 +193,37 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float, hold=None):
 class Step(NamedTuple):
     """A trial of `newton_step`: ``trial (B, P)`` the coordinates after the step, ``ok (B,)``
     whether it was taken, ``gain (B,)`` its first-order gain, ``predicted (B,)`` the quadratic
-    model's gain, ``size`` the order of the dense system factored (at most ``d + 1``)."""
+    model's gain, ``size (B,)`` int64 the order of the dense system factored for each problem
+    (at most ``d + 1``: `_order`)."""
 
     trial: torch.Tensor
     ok: torch.Tensor
     gain: torch.Tensor
     predicted: torch.Tensor
-    size: int
+    size: torch.Tensor
 
 
-def _coupled(kkk: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """The rows of the dense system that couple: ``idx (B, n)`` the inputs whose predictor
-    moves (``kkk > 0``; padded, where a batch's problems differ, with inputs that do not, whose
-    rows of ``C`` are the identity's) and then ``d``, the row of ``c``; ``n``."""
+_LADDER = 8  # the dense system's order is rounded up to a multiple of this (`_order`)
+
+
+def _order(n: torch.Tensor, d: int) -> torch.Tensor:
+    """The order the dense system of ``n`` coupled rows is factored at: ``n`` rounded up to a
+    multiple of `_LADDER`, at most ``d + 1``. A problem's order so depends on its own state
+    alone, never on the batch it is fitted in: LAPACK's Cholesky of a matrix padded with
+    identity rows rounds otherwise than the unpadded one's, so padding each problem of a batch
+    to the largest order would make a batch and a single fit part at round-off; problems of one
+    order are factored together (`newton_step`), problem by problem as a single fit would."""
+    return torch.clamp((n + _LADDER - 1) // _LADDER * _LADDER, max=d + 1)
+
+
+def _coupled(kkk: torch.Tensor, n: int) -> torch.Tensor:
+    """The rows of the dense system that couple, ``(B, n)``: the inputs whose predictor moves
+    (``kkk > 0``), padded up to order ``n`` with the first inputs that do not (whose rows of
+    ``C`` are the identity's), then ``d``, the row of ``c``."""
     B, d = kkk.shape
-    moving = kkk > 0
-    n = int(moving.sum(-1).max())
-    order = torch.argsort((~moving).to(torch.int8), dim=-1, stable=True)[:, :n]
+    order = torch.argsort((~(kkk > 0)).to(torch.int8), dim=-1, stable=True)[:, : n - 1]
     last = torch.full((B, 1), d, dtype=order.dtype, device=order.device)
-    return torch.cat([order, last], -1), n + 1
+    return torch.cat([order, last], -1)
 
 
 def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hold=None) -> Step:
@@ -234,8 +246,9 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     predictor ``k_m`` no free coordinate moves (``jk = 0`` on its free rows: a pruned input,
     whose ``<w_z>`` is held at 0 or whose ``<w_z>`` and ``<w_x>`` are both 0) has a zero row
     in ``L`` and the identity's row in ``C``, and its part of ``u`` below multiplies zero: so
-    ``C`` is factored on the rows of the other inputs and of ``c`` alone (`_coupled`, ``size``
-    rows), ``O(a^3 + r^3 d)`` for ``a`` inputs left, where most inputs are pruned.
+    ``C`` is factored on the rows of the other inputs and of ``c`` alone (`_coupled`, at the
+    order `_order` gives, the problems of one order together), ``O(a^3 + r^3 d)`` for ``a``
+    inputs left, where most inputs are pruned.
     Where ``A`` is not positive definite the step is refused (``ok`` False) although ``M``
     may be: the optimiser raises the damping until ``A`` is positive definite before it
     calls this (`block_damping`, no trial needed). A dense ``P x P`` Cholesky (``P = r d + 1``)
@@ -264,27 +277,17 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     s = torch.sqrt(kkk.clamp_min(0.0))
     lc = torch.where(kkk > 0, kkc / torch.where(kkk > 0, s, 1.0), 0.0)
     lcc = torch.sqrt((kcc - (lc * lc).sum(-1)).clamp_min(0.0))
-    # on the coupled rows (`_coupled`), the last one c's: L = diag(sf) + e_c l^T (the
-    # arrowhead: l = (lc, 0)), so L^T W L and L x, L^T x cost O(n^2)
-    idx, n = _coupled(kkk)
-    sf = torch.cat([s, lcc[:, None]], -1).gather(-1, idx)  # (B, n)
-    lv = torch.nn.functional.pad(lc, (0, 1)).gather(-1, idx)
-    W = _coupling_rows(cv, idx, w_kk)
-    b = b.gather(-1, idx)
-    wd, wdd = W[:, :, -1], W[:, -1, -1]
-    swd = sf * wd
-    C = sf[:, :, None] * W * sf[:, None, :]
-    C = C + swd[:, :, None] * lv[:, None, :] + lv[:, :, None] * swd[:, None, :]
-    C = C + wdd[:, None, None] * lv[:, :, None] * lv[:, None, :]
-    C.diagonal(dim1=-2, dim2=-1).add_(1.0)
-    chol_c, info_c = torch.linalg.cholesky_ex(C)
-    Wb = (W @ b[..., None])[..., 0]
-    ltw = sf * Wb + lv * Wb[:, -1, None]  # L^T W b
-    x = torch.cholesky_solve(ltw[..., None], chol_c)[..., 0]
-    lx = sf * x
-    lx[:, -1] += (lv * x).sum(-1)  # L x
-    u_c = Wb - (W @ lx[..., None])[..., 0]
-    u = torch.zeros((B, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
+    # the dense system on the coupled rows (`_coupled`), the problems of each order together
+    size = _order((kkk > 0).sum(-1) + 1, d)
+    u = torch.zeros((B, d + 1), dtype=b.dtype, device=b.device)
+    info_c = torch.zeros((B,), dtype=torch.int32, device=b.device)
+    for n in sorted(set(size.tolist())):
+        one = size == n
+        pick = slice(None) if bool(one.all()) else one.nonzero()[:, 0]
+        G = tuple(t[pick] for t in (cv.xx, cv.c, cv.gkc, cv.gcc, w_kk))
+        u[pick], info_c[pick] = _capacitance_solve(
+            G, _coupled(kkk[pick], n), s[pick], lc[pick], lcc[pick], b[pick]
+        )
     step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
     delta = torch.cat(
         [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
@@ -296,22 +299,50 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     step = trial - theta
     # the quadratic model's gain g.s - s^T M s / 2, with M s = g - lam D s on the free rows
     pred = 0.5 * ((g * step).sum(-1) + lam * (damp * step * step * free).sum(-1))
-    return Step(trial, ok, (g * step).sum(-1), pred, n)
+    return Step(trial, ok, (g * step).sum(-1), pred, size)
 
 
-def _coupling_rows(cv: Curvature, idx: torch.Tensor, w_kk: torch.Tensor) -> torch.Tensor:
-    """``W = -G`` less the diagonal ``w_kk`` moved into the blocks (`newton_step`), on the
-    rows and columns ``idx (B, n)`` (`_coupled`, the last one ``c``'s), ``(B, n, n)``."""
+def _capacitance_solve(G, idx, s, lc, lcc, b):
+    """The Woodbury part of `newton_step` on the coupled rows ``idx (B, n)`` (`_coupled`, the
+    last one c's): ``u = W b - W L C^{-1} L^T W b`` scattered to ``(B, d + 1)``, and the
+    Cholesky's ``info (B,)``; ``G = (xx, c, gkc, gcc, w_kk)`` (`_coupling_rows`). ``L = diag(sf) + e_c l^T`` (the arrowhead: ``l = (lc, 0)``), so
+    ``L^T W L``, ``L x`` and ``L^T x`` cost ``O(n^2)``."""
+    B, d = s.shape
+    sf = torch.cat([s, lcc[:, None]], -1).gather(-1, idx)  # (B, n)
+    lv = torch.nn.functional.pad(lc, (0, 1)).gather(-1, idx)
+    W = _coupling_rows(*G, idx)
+    b = b.gather(-1, idx)
+    wd, wdd = W[:, :, -1], W[:, -1, -1]
+    swd = sf * wd
+    C = sf[:, :, None] * W * sf[:, None, :]
+    C = C + swd[:, :, None] * lv[:, None, :] + lv[:, :, None] * swd[:, None, :]
+    C = C + wdd[:, None, None] * lv[:, :, None] * lv[:, None, :]
+    C.diagonal(dim1=-2, dim2=-1).add_(1.0)
+    chol_c, info_c = torch.linalg.cholesky_ex(C)
+    Wb = jb.matvec(W, b)
+    ltw = sf * Wb + lv * Wb[:, -1, None]  # L^T W b
+    x = torch.cholesky_solve(ltw[..., None], chol_c)[..., 0]
+    lx = sf * x
+    lx[:, -1] += (lv * x).sum(-1)  # L x
+    u_c = Wb - jb.matvec(W, lx)
+    u = torch.zeros((B, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
+    return u, info_c
+
+
+def _coupling_rows(xx, c, gkc, gcc, w_kk, idx: torch.Tensor) -> torch.Tensor:
+    """``W = -G`` (`Curvature`: ``xx (B, d, d)``, ``c (B,)``, ``gkc (B, d)``, ``gcc (B,)``) less
+    the diagonal ``w_kk (B, d)`` moved into the blocks (`newton_step`), on the rows and columns
+    ``idx (B, n)`` (`_coupled`, the last one ``c``'s), ``(B, n, n)``."""
     B, n = idx.shape
-    d = cv.xx.shape[-1]
+    d = xx.shape[-1]
     ki = idx[:, :-1]
-    xx = cv.xx.gather(-2, ki[:, :, None].expand(B, n - 1, d))
+    xx = xx.gather(-2, ki[:, :, None].expand(B, n - 1, d))
     xx = xx.gather(-1, ki[:, None, :].expand(B, n - 1, n - 1))
-    top = xx / cv.c[:, None, None]
+    top = xx / c[:, None, None]
     top.diagonal(dim1=-2, dim2=-1).sub_(w_kk.gather(-1, ki))
-    kc = -cv.gkc.gather(-1, ki)
+    kc = -gkc.gather(-1, ki)
     top = torch.cat([top, kc[..., None]], -1)
-    return torch.cat([top, torch.cat([kc, -cv.gcc[:, None]], -1)[:, None]], -2)
+    return torch.cat([top, torch.cat([kc, -gcc[:, None]], -1)[:, None]], -2)
 
 
 def escapes(theta, cv: Curvature, lb, n, level: float) -> torch.Tensor:
