@@ -305,8 +305,9 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
 def _capacitance_solve(G, idx, s, lc, lcc, b):
     """The Woodbury part of `newton_step` on the coupled rows ``idx (B, n)`` (`_coupled`, the
     last one c's): ``u = W b - W L C^{-1} L^T W b`` scattered to ``(B, d + 1)``, and the
-    Cholesky's ``info (B,)``; ``G = (xx, c, gkc, gcc, w_kk)`` (`_coupling_rows`). ``L = diag(sf) + e_c l^T`` (the arrowhead: ``l = (lc, 0)``), so
-    ``L^T W L``, ``L x`` and ``L^T x`` cost ``O(n^2)``."""
+    Cholesky's ``info (B,)``; ``G = (xx, c, gkc, gcc, w_kk)`` (`_coupling_rows`). With
+    ``L = diag(sf) + e_c l^T`` (the arrowhead: ``l = (lc, 0)``), ``L^T W L``, ``L x`` and
+    ``L^T x`` cost ``O(n^2)``."""
     B, d = s.shape
     sf = torch.cat([s, lcc[:, None]], -1).gather(-1, idx)  # (B, n)
     lv = torch.nn.functional.pad(lc, (0, 1)).gather(-1, idx)
