@@ -19,6 +19,7 @@ The state is one ``(*batch, 7, d)`` tensor with rows `MZ`, `MX` (the posterior m
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import NamedTuple
 
@@ -61,6 +62,35 @@ class Stats(NamedTuple):
     @property
     def dg(self) -> torch.Tensor:
         return torch.diagonal(self.xx, dim1=-2, dim2=-1)
+
+
+class Rows:
+    """The problems of a batch that ``mask (B,)`` selects: ``take`` their rows of a tensor and
+    ``put`` rows back. Where it selects all of them (a single fit, most iterations of a
+    batch), both are the tensor itself: indexing by a tensor copies, and ``d x d`` statistics
+    each iteration."""
+
+    def __init__(self, mask: torch.Tensor) -> None:
+        self.idx = None if bool(mask.all()) else mask.nonzero()[:, 0]
+
+    def take(self, t: torch.Tensor) -> torch.Tensor:
+        return t if self.idx is None else t[self.idx]
+
+    def stats(self, S: Stats) -> Stats:
+        return S if self.idx is None else Stats(*(t[self.idx] for t in S))
+
+    def put(self, dst: torch.Tensor, rows: torch.Tensor) -> None:
+        if self.idx is None:
+            dst.copy_(rows)
+        else:
+            dst[self.idx] = rows
+
+    def sub(self, inner: Rows) -> Rows:
+        """The rows that ``inner`` (a selection of these rows) selects, as rows of the batch."""
+        out = copy.copy(inner)
+        if self.idx is not None:
+            out.idx = self.idx if inner.idx is None else self.idx[inner.idx]
+        return out
 
 
 def matvec(A: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

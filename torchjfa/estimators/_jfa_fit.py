@@ -49,7 +49,7 @@ import torch
 
 from .._threads import single_thread
 from . import _jfa_bound as jb
-from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Stats
+from ._jfa_bound import MX, MZ, PX, PZ, VX, VZ, Hyper, Rows, Stats
 from ._jfa_newton import block_damping, derivatives, escapes, newton_step
 
 REASONS = ("max_iter", "bound", "coef")
@@ -153,35 +153,6 @@ def fit(
     if method == "closed" and not hp.bayes:
         return ml_closed_form(S, st, psy, hp, max_iter=max_iter, tol=tol, coef_tol=coef_tol)
     raise ValueError(f"no method {method!r} for {'Bayesian' if hp.bayes else 'ML'} JFA")
-
-
-class _Rows:
-    """The problems of a batch that ``mask (B,)`` selects: ``take`` their rows of a tensor and
-    ``put`` rows back. Where it selects all of them (a single fit, most iterations of a
-    batch), both are the tensor itself: indexing by a tensor copies, and ``d x d`` statistics
-    each iteration."""
-
-    def __init__(self, mask: torch.Tensor) -> None:
-        self.idx = None if bool(mask.all()) else mask.nonzero()[:, 0]
-
-    def take(self, t: torch.Tensor) -> torch.Tensor:
-        return t if self.idx is None else t[self.idx]
-
-    def stats(self, S: Stats) -> Stats:
-        return S if self.idx is None else Stats(*(t[self.idx] for t in S))
-
-    def put(self, dst: torch.Tensor, rows: torch.Tensor) -> None:
-        if self.idx is None:
-            dst.copy_(rows)
-        else:
-            dst[self.idx] = rows
-
-    def sub(self, mask: torch.Tensor) -> _Rows:
-        """The rows that ``mask`` (over these rows) selects, as rows of the whole batch."""
-        out = _Rows(mask)
-        if self.idx is not None:
-            out.idx = self.idx[mask]
-        return out
 
 
 def _int(like: torch.Tensor, value: int = 0) -> torch.Tensor:
@@ -472,7 +443,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         newton, pruning = live & ~settled, live & settled
         need = newton & stale
         if bool(need.any()):
-            rows = _Rows(need)
+            rows = Rows(need)
             new = derivatives(rows.take(theta), rows.stats(flat), rows.take(psx_c), hp)
             if cv is None or rows.idx is None:  # every problem (always the first time)
                 cv = type(new)(*(t.contiguous() for t in new))
@@ -488,7 +459,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         small = torch.zeros_like(live)
         if bool(newton.any()):
             # on the problems taking a Newton step only (the others wait or are done)
-            rows = _Rows(newton)
+            rows = Rows(newton)
             sub, th_i, lb_i = rows.stats(flat), rows.take(theta), rows.take(lb)
             cv_i = type(cv)(*(rows.take(t) for t in cv))
             # the damping the block part needs, found without a trial (`block_damping`)
@@ -501,8 +472,10 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             )
             rows.put(lam, lam_i)
             rows.put(nu, nu_i)
-            rows.put(n_estep, rows.take(n_estep) + raises * block_cost)
             step = newton_step(th_i, cv_i, lam_i, lb_i, blocks, hold_i)
+            # the raises of the damping, and the solve at each problem's order (`Step`)
+            solve = -(-(step.size**3) // (6 * d * d))
+            rows.put(n_estep, rows.take(n_estep) + raises * block_cost + solve)
             th_n, L_n = theta.clone(), L.clone()
             rows.put(th_n, step.trial)
             ok, gain, pred = torch.zeros_like(live), torch.zeros_like(L), torch.zeros_like(L)
@@ -510,10 +483,12 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             rows.put(gain, step.gain)
             rows.put(pred, step.predicted)
             if bool(step.ok.any()):  # a refused step is no move: its bound is not computed
-                good = rows.sub(step.ok)
-                trial = step.trial if good.idx is None else step.trial[step.ok]
-                good.put(L_n, _theta_bound(trial, *good.stats(flat), good.take(psx_c), hp))
-            rows.put(n_estep, rows.take(n_estep) + -(-(step.size**3) // (6 * d * d)))
+                inner = Rows(step.ok)
+                good = rows.sub(inner)
+                L_good = _theta_bound(
+                    inner.take(step.trial), *good.stats(flat), good.take(psx_c), hp
+                )
+                good.put(L_n, L_good)
             # a step whose first-order gain the bound cannot resolve is judged by its model:
             # kept unless the bound falls by more than its round-off (NaN fails either way)
             small = newton & ok & (gain <= roundoff)
@@ -523,7 +498,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             n_estep = n_estep + ok.long()
         found = torch.zeros_like(live)
         if bool(pruning.any()):
-            rows = _Rows(pruning)
+            rows = Rows(pruning)
             th_i, L_i, found_i = _prune_trial(
                 rows.take(theta), rows.stats(flat), rows.take(psx_c), hp, rows.take(thr)
             )

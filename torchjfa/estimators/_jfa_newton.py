@@ -282,12 +282,13 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     u = torch.zeros((B, d + 1), dtype=b.dtype, device=b.device)
     info_c = torch.zeros((B,), dtype=torch.int32, device=b.device)
     for n in sorted(set(size.tolist())):
-        one = size == n
-        pick = slice(None) if bool(one.all()) else one.nonzero()[:, 0]
-        G = tuple(t[pick] for t in (cv.xx, cv.c, cv.gkc, cv.gcc, w_kk))
-        u[pick], info_c[pick] = _capacitance_solve(
-            G, _coupled(kkk[pick], n), s[pick], lc[pick], lcc[pick], b[pick]
+        rows = jb.Rows(size == n)
+        G = tuple(rows.take(t) for t in (cv.xx, cv.c, cv.gkc, cv.gcc, w_kk))
+        u_n, info_n = _capacitance_solve(
+            G, _coupled(rows.take(kkk), n), *(rows.take(t) for t in (s, lc, lcc, b))
         )
+        rows.put(u, u_n)
+        rows.put(info_c, info_n)
     step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
     delta = torch.cat(
         [step_in.mT.reshape(B, r * d), ((g[:, -1] - psy * u[:, d]) / a_psy)[:, None]], -1
