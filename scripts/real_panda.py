@@ -1,7 +1,8 @@
 """The default `torchjfa identify` on a real Franka Panda log, against hand-tuned least squares.
 
-    python scripts/real_panda.py            # the whole log (about 2 minutes)
+    python scripts/real_panda.py            # the whole log (about a minute)
     python scripts/real_panda.py --smoke    # a few seconds of it, two rows (a check, no figures)
+    python scripts/real_panda.py --origins  # the same comparison at five split points (1 minute)
 
 The log is `../shared/data/panda_gaz2019` (its README: a real Panda excitation, uneven 1 kHz,
 measured q, qd and link-side torques; not shipped with the package). Without it the script says
@@ -33,7 +34,17 @@ the same against the unfiltered torque is printed beside it. Rows:
 * the description: the URDF's parameters (no friction).
 
 Then the identified link masses of the defaults against the description's, with the band
-[0.3x, 3x].
+[0.3x, 3x], and how much of the held-out motion lies inside the training part's range of every
+joint (the rest is extrapolation in configuration, where the gravity terms of parameters the
+training part hardly excites decide the error).
+
+``--origins``: one split judges the rows on one window of motion. With ``--origins`` the
+script repeats the comparison of the defaults and the hand-tuned OLS rows at several split
+points ``T`` (``ORIGINS``, the last the 80 % split): each row identified on ``[0, T)`` alone,
+judged by the same pipeline on the ``ORIGIN_WINDOW_S`` seconds after ``T + 2 / EVAL_CUTOFF_HZ``;
+printed per split: the defaults (with the cut-off they chose), OLS at each hand-picked cut-off,
+the best of those on that window, the share of the window inside the training range, and the
+means over the splits.
 """
 
 from __future__ import annotations
@@ -41,6 +52,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import statistics
 import sys
 import tempfile
 import time
@@ -67,6 +79,8 @@ JFA_CONFIGS = (
 )
 MASS_BAND = (0.3, 3.0)
 SMOKE_SECONDS = 10.0
+ORIGINS = (6.0, 7.5, 9.0, 10.5, None)  # s from the log's start; None: the 80 % split
+ORIGIN_WINDOW_S = 2.8
 
 
 def load_panda(folder: str | Path = DATA) -> JointLog:
@@ -110,18 +124,44 @@ def _changes(options: torchjfa.Options) -> str:
     return ", ".join(changed) or "(the defaults)"
 
 
-def _evaluation(log: JointLog, t_split: float) -> dict[str, torch.Tensor]:
-    """The one evaluation pipeline: the whole log at EVAL_CUTOFF_HZ, held-out samples only."""
+def _evaluation(log: JointLog, t_split: float, t_end: float = math.inf) -> dict[str, torch.Tensor]:
+    """The one evaluation pipeline: the whole log at EVAL_CUTOFF_HZ, held-out samples only
+    (from ``t_split + 2 / EVAL_CUTOFF_HZ`` to ``t_end``), and ``inside``: the share of them
+    whose every joint lies inside the range the training part (before ``t_split``) covers."""
     filtered = prepare(log, cutoff_hz=EVAL_CUTOFF_HZ, period_s=None)
     raw = prepare(log, cutoff_hz=EVAL_CUTOFF_HZ, period_s=None, filter_torque=False)
-    keep = filtered.t >= t_split + 2.0 / EVAL_CUTOFF_HZ
+    keep = (filtered.t >= t_split + 2.0 / EVAL_CUTOFF_HZ) & (filtered.t < t_end)
+    seen = log.q[log.t < t_split]
+    q = filtered.q[keep]
+    inside = ((q >= seen.min(0).values) & (q <= seen.max(0).values)).all(1)
     return {
-        "q": filtered.q[keep],
+        "q": q,
         "qd": filtered.qd[keep],
         "qdd": filtered.qdd[keep],
         "tau": filtered.tau[keep],
         "tau_raw": raw.tau[keep],
+        "inside": inside.to(torch.float64).mean(),
     }
+
+
+def _split(log: JointLog, t_split: float, tmp: Path) -> tuple[Path, Path]:
+    """The log before ``t_split`` and from it on as CSV files: ``(train, held-out)``."""
+    n = int(torch.searchsorted(log.t, torch.tensor(t_split, dtype=log.t.dtype)))
+    train_csv, valid_csv = tmp / "train.csv", tmp / "heldout.csv"
+    write_log(log.select(slice(0, n)), train_csv)
+    write_log(log.select(slice(n, log.n_samples)), valid_csv)
+    return train_csv, valid_csv
+
+
+def _hand_tuned(base: torchjfa.Options, cutoff: float) -> torchjfa.Options:
+    """The reference: OLS, textbook Coulomb friction (sign(qd)), no prior, at ``cutoff``."""
+    return base.replace(
+        estimator="ols",
+        friction=tuple(FRICTION.split(",")),
+        cutoff=cutoff,
+        coulomb_velocity=0.0,
+        description_prior=None,
+    )
 
 
 def _rms(model, theta, ev) -> tuple[torch.Tensor, torch.Tensor]:
@@ -153,15 +193,11 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
     log = load_panda(folder)
     if smoke:
         log = log.select(slice(0, int(torch.searchsorted(log.t, log.t[0] + SMOKE_SECONDS))))
-    t_split = float(log.t[0] + (1.0 - HOLDOUT) * (log.t[-1] - log.t[0]))
-    n_train = int(torch.searchsorted(log.t, torch.tensor(t_split, dtype=log.t.dtype)))
+    t_split = _split_time(log)
     ev = _evaluation(log, t_split)
     rows: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        train_csv, valid_csv = tmp / "train.csv", tmp / "heldout.csv"
-        write_log(log.select(slice(0, n_train)), train_csv)
-        write_log(log.select(slice(n_train, log.n_samples)), valid_csv)
+        train_csv, valid_csv = _split(log, t_split, Path(tmp))
 
         def row(label, options):
             ident, seconds = _identify(train_csv, valid_csv, options)
@@ -188,27 +224,13 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
             rows["bayes-jfa"] = min(jfa, key=lambda r: float(r["rms"].mean()))
             tried = ", ".join(f"{r['options']} {float(r['rms'].mean()):.4f}" for r in jfa)
         cutoffs = HAND_CUTOFFS[1:2] if smoke else HAND_CUTOFFS
-        friction = tuple(FRICTION.split(","))
-        # the reference: textbook Coulomb friction, sign(qd)
-        ols = [
-            row(
-                f"OLS {FRICTION}, {c:g} Hz",
-                base.replace(
-                    estimator="ols",
-                    friction=friction,
-                    cutoff=c,
-                    coulomb_velocity=0.0,
-                    description_prior=None,
-                ),
-            )
-            for c in cutoffs
-        ]
+        ols = [row(f"OLS {FRICTION}, {c:g} Hz", _hand_tuned(base, c)) for c in cutoffs]
         rows["ols"] = min(ols, key=lambda r: float(r["rms"].mean()))
         if not smoke:  # the same with the defaults' smoothed Coulomb term (v_c chosen at c)
             smooth = [
                 row(
                     f"defaults at {c:g} Hz",
-                    base.replace(estimator="ols", friction=friction, cutoff=c),
+                    base.replace(estimator="ols", friction=tuple(FRICTION.split(",")), cutoff=c),
                 )
                 for c in cutoffs
             ]
@@ -227,6 +249,97 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
     if not smoke:
         print(f"Bayesian JFA configurations tried: {tried}", file=out)
     return rows
+
+
+def _split_time(log: JointLog) -> float:
+    """The time of the default split: the last HOLDOUT of the log (by time) held out."""
+    return float(log.t[0] + (1.0 - HOLDOUT) * (log.t[-1] - log.t[0]))
+
+
+def origins(
+    folder: str | Path = DATA,
+    *,
+    times=ORIGINS,
+    window_s: float = ORIGIN_WINDOW_S,
+    cutoffs=HAND_CUTOFFS,
+    out=sys.stdout,
+) -> list[dict] | None:
+    """The defaults against hand-tuned OLS at several split points (module docstring).
+
+    Args:
+        folder: the log's folder.
+        times: the split points, s from the log's start (None: the 80 % split).
+        window_s: the seconds judged after each split (from ``2 / EVAL_CUTOFF_HZ`` on).
+        cutoffs: the hand-picked cut-offs of the OLS rows, Hz.
+        out: where the table goes.
+
+    Returns:
+        One dict per split: ``t`` (s), ``inside`` (share of the window inside the training
+        range), ``defaults`` and ``cutoff_hz`` (the defaults' mean RMS, N m, and the cut-off they
+        chose), ``ols`` (hand-picked cut-off -> mean RMS, N m); None without the log.
+    """
+    folder = Path(folder)
+    if not (folder / "torques.txt").is_file():
+        print(f"no Panda log in {folder} (see scripts/real_panda.py): nothing to do", file=out)
+        return None
+    log = load_panda(folder)
+    base = torchjfa.Options()
+    results = []
+    print(
+        f"split points: each row identified on [0, T) alone, judged on the {window_s:g} s "
+        f"from T + {2.0 / EVAL_CUTOFF_HZ:g} s on against the torque filtered at "
+        f"{EVAL_CUTOFF_HZ:g} Hz; mean RMS over the joints, N m",
+        file=out,
+    )
+    head = " ".join(f"{'OLS ' + format(c, 'g'):>8}" for c in cutoffs)
+    print(f"{'T, s':>6} {'inside':>6} {'defaults':>15} {head} {'best OLS':>8} {'vs':>7}", file=out)
+    for t in times:
+        t_split = _split_time(log) if t is None else float(log.t[0]) + float(t)
+        ev = _evaluation(log, t_split, t_split + 2.0 / EVAL_CUTOFF_HZ + window_s)
+        with tempfile.TemporaryDirectory() as tmp:
+            files = _split(log, t_split, Path(tmp))
+            d, cutoff = _mean_rms(files, ev, base)
+            ols = {c: _mean_rms(files, ev, _hand_tuned(base, c))[0] for c in cutoffs}
+        best = min(ols.values())
+        results.append(
+            {
+                "t": t_split - float(log.t[0]),
+                "inside": float(ev["inside"]),
+                "defaults": d,
+                "cutoff_hz": cutoff,
+                "ols": ols,
+            }
+        )
+        print(
+            f"{t_split - float(log.t[0]):6.2f} {float(ev['inside']):6.0%} "
+            f"{d:8.4f} ({cutoff:4.3g}) "
+            + " ".join(f"{v:8.4f}" for v in ols.values())
+            + f" {best:8.4f} {100 * (1 - d / best):+6.1f}%",
+            file=out,
+            flush=True,
+        )
+    mean = statistics.fmean
+    d = mean([r["defaults"] for r in results])
+    fixed = {c: mean([r["ols"][c] for r in results]) for c in cutoffs}
+    best = mean([min(r["ols"].values()) for r in results])
+    c_fixed = min(fixed, key=fixed.get)
+    print(
+        f"mean over the {len(results)} splits: defaults {d:.4f}; OLS at the best cut-off of "
+        f"each window {best:.4f} (defaults {100 * (1 - d / best):+.1f} %); OLS at the best "
+        f"single cut-off for all windows ({c_fixed:g} Hz) {fixed[c_fixed]:.4f} (defaults "
+        f"{100 * (1 - d / fixed[c_fixed]):+.1f} %); the defaults below the best OLS of the "
+        f"window at {sum(r['defaults'] < min(r['ols'].values()) for r in results)} of "
+        f"{len(results)} splits",
+        file=out,
+    )
+    return results
+
+
+def _mean_rms(files: tuple[Path, Path], ev, options: torchjfa.Options) -> tuple[float, float]:
+    """One row on ``files`` (train, held-out CSV): its mean held-out RMS on ``ev``, N m, and the
+    cut-off it used, Hz."""
+    ident, _ = _identify(*files, options)
+    return float(_rms(ident.model, ident.theta, ev)[0].mean()), ident.data.cutoff_hz
 
 
 def _smoothing(model) -> str:
@@ -271,6 +384,11 @@ def _print(rows, ev, out, *, smoke, ols_all) -> None:
         f"(the goal: at least +10 %): {'met' if d <= 0.9 * o else 'NOT met'}",
         file=out,
     )
+    print(
+        f"held-out motion inside the training range of every joint: {float(ev['inside']):.0%} "
+        "of the samples (the rest extrapolates in configuration)",
+        file=out,
+    )
     ident, desc = rows["defaults"], rows["description"]
     got, ref = _masses(ident["model"], ident["theta"]), _masses(desc["model"], desc["theta"])
     print("link masses, kg: identified (defaults) / description, ratio", file=out)
@@ -284,5 +402,11 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(DATA), help="the log's folder")
     parser.add_argument("--smoke", action="store_true", help="a few seconds, two rows")
+    parser.add_argument(
+        "--origins", action="store_true", help="the defaults against OLS at several split points"
+    )
     a = parser.parse_args()
-    run(a.data, smoke=a.smoke)
+    if a.origins:
+        origins(a.data)
+    else:
+        run(a.data, smoke=a.smoke)

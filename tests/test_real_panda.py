@@ -69,3 +69,16 @@ def test_the_script_says_so_without_the_log(script, tmp_path):
     out = io.StringIO()
     assert script.run(tmp_path, out=out) is None
     assert "no Panda log" in out.getvalue()
+
+
+def test_the_split_points_table_judges_each_row_on_its_window(script):
+    out = io.StringIO()
+    (r,) = script.origins(DATA, times=(6.0,), window_s=1.0, cutoffs=(8.0,), out=out)
+    text = out.getvalue()
+    assert r["t"] == pytest.approx(6.0, abs=2e-3)  # the first sample at or after 6 s
+    assert 0.0 <= r["inside"] <= 1.0 and set(r["ols"]) == {8.0}
+    assert 0.0 < r["defaults"] < 1.0 and 0.0 < r["ols"][8.0] < 1.0  # N m, identified rows
+    assert r["cutoff_hz"] > 0
+    # the printed comparison is the returned one
+    assert f"{100 * (1 - r['defaults'] / r['ols'][8.0]):+.1f} %" in text
+    assert "mean over the 1 splits" in text
