@@ -28,7 +28,7 @@ mean over seeds:
 The issue's claims: Bayesian JFA's held-out error below OLS's, and its parameter error at least
 20 % below OLS's; judged on the geometric mean over seeds of the per-seed ratios to OLS.
 
-    python scripts/sim_bjfa_vs_ols.py             # head and arm, seeds 0, 1, 2
+    python scripts/sim_bjfa_vs_ols.py             # head and arm, seeds 0, 1, 2 (--seeds 10: 13 min)
     python scripts/sim_bjfa_vs_ols.py --smoke     # head, one seed, short logs (seconds)
 """
 
