@@ -201,6 +201,89 @@ def _early_states(d, seed, hp, fixed_x, sweeps):
         yield S, st, psy
 
 
+def _along_ridge(theta, m, r, d, floor):
+    """``theta (1, P)`` with input m moved to ``psi_x / v = r`` along its ridge (v, k, q and tau
+    held, the posterior variances scaled with the noise variances): the reference the ridge
+    move is checked against, written from the fitting note's formulas."""
+    th = theta.clone()
+    mz, mx = float(th[0, m]), float(th[0, d + m])
+    vz, vx, psz, psx = (math.exp(float(th[0, i * d + m])) for i in (2, 3, 4, 5))
+    tau = 1 + vz / psz + vx / psx
+    v = mx * mx / tau + psx
+    k = mz * mx / (tau * v)
+    q = psz + mz * mz * psx / (tau * v)
+    psz_n, psx_n = q - k * k * v * r / (1 - r), r * v
+    if not (psz_n >= floor and psx_n >= floor):
+        return None
+    th[0, m] = math.copysign(math.sqrt(k * k * tau * v / (1 - r)), mz)
+    th[0, d + m] = math.copysign(math.sqrt(tau * v * (1 - r)), mx)
+    th[0, 2 * d + m] = math.log(vz / psz * psz_n)
+    th[0, 3 * d + m] = math.log(vx / psx * psx_n)
+    th[0, 4 * d + m] = math.log(psz_n)
+    th[0, 5 * d + m] = math.log(psx_n)
+    return th
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_the_ridge_slope_is_autograds(ard):
+    """`_ridge_slope` (written out by hand) against autograd's first and second derivatives of
+    `_ridge_terms` in ``u = log(r / (1 - r))``, at states early in a fit."""
+    d = 5
+    hp = _hyper(ard, False)
+    for _, st, _ in _early_states(d, 1, hp, False, 3):
+        mz, mx, vz, vx, _, psz, psx = st.unbind(-2)
+        tau = 1 + vz / psz + vx / psx
+        v = mx * mx / tau + psx
+        k = mz * mx / (tau * v)
+        q = psz + mz * mz * psx / (tau * v)
+        fixed = jf._Ridge(k * k * tau * v, tau * v, q, k * k * v, v, vz / psz, vx / psx)
+        u = torch.log(psx / (v - psx)).detach().requires_grad_()
+        f = jf._ridge_terms(torch.exp(u), fixed, hp)[0]
+        (g_ref,) = torch.autograd.grad(f.sum(), u, create_graph=True)
+        (h_ref,) = torch.autograd.grad(g_ref.sum(), u)  # the terms are separable in the inputs
+        g, h = jf._ridge_slope(torch.exp(u.detach()), fixed, hp)
+        torch.testing.assert_close(g, g_ref.detach(), rtol=1e-10, atol=1e-12)
+        torch.testing.assert_close(h, h_ref, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("ard", ["shared", "output"])
+def test_the_ridge_move_keeps_the_fit_and_maximises_each_inputs_terms_along_its_ridge(
+    ard, monkeypatch
+):
+    """`_ridge_move` (psi_x learned): the bound's change is the move's gain (the data's part,
+    through v, k and c, stays: checked on the state), every input ends at the best point of
+    its ridge (against a grid of 400 points along it, each input alone, the bound computed
+    from scratch), and no input's noise variance falls below the floor."""
+    d = 5
+    hp = _hyper(ard, False)
+    monkeypatch.setattr(jf, "_RIDGE_ROUNDS", 30)  # to the optimum, for the grid comparison
+    checked = 0
+    for seed in range(2):
+        for S, st, psy in list(_early_states(d, seed, hp, False, 6))[::2]:
+            theta = jf._pack(st, psy, hp)[None]
+            batch = jb.Stats(*(t[None] for t in S))
+            psx_c = st[jb.PX][None]
+            L0 = jf._theta_bound(theta, *batch, psx_c, hp)
+            new, gain = jf._ridge_move(theta, hp)
+            L1 = jf._theta_bound(new, *batch, psx_c, hp)
+            assert float(gain) > 0
+            assert float(L1 - L0) == pytest.approx(float(gain), rel=1e-6, abs=1e-9 * float(S.n))
+            old_s, new_s = jf._state(theta, psx_c, hp)[0], jf._state(new, psx_c, hp)[0]
+            torch.testing.assert_close(jb.predictor(new_s), jb.predictor(old_s), rtol=1e-10, atol=0)
+            mz, mx, vz, vx, _, psz, psx = new_s[0].unbind(-2)
+            assert bool((psz >= hp.floor).all() & (psx >= hp.floor).all())
+            for m in range(d):
+                best = -math.inf
+                for r in torch.linspace(-8.0, 8.0, 400, dtype=F64).sigmoid().tolist():
+                    th = _along_ridge(new, m, r, d, hp.floor)
+                    if th is None:
+                        continue
+                    best = max(best, float(jf._theta_bound(th, *batch, psx_c, hp)))
+                assert float(L1) >= best - 1e-9 * float(S.n)
+                checked += 1
+    assert checked >= 20
+
+
 def _dense_newton_step(theta, g, H, lam, lb, hold=None):
     """The damped Newton step through the dense P x P matrix (the reference)."""
     free = ~((theta <= lb) & (g <= 0))

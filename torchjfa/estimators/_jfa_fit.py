@@ -26,7 +26,12 @@ the state); `fit` is the entry point. Three methods:
   them when Newton has converged without them, so the fit ends at a stationary point of the
   whole bound.
   Before a Newton trial the damping is raised until the blocks of the Newton matrix are
-  positive definite, which needs no trial (`_jfa_newton.block_damping`). Every step,
+  positive definite, which needs no trial (`_jfa_newton.block_damping`). Where psi_x is
+  learned, a kept Newton step that gained little is followed by the fitting note's ridge move
+  (`_ridge_move`): each input moved along ``psi_x / v`` with ``v``, ``k``, ``q`` and ``tau``
+  held, a 1-D maximisation of its own prior terms, no mat-vec; Newton crawls along these curved
+  ridges, more slowly the more data (``docs/benchmarks.md``: about half the iterations from
+  3 10^4 rows on, at the same optima). Every step,
   damped or a prune, is kept only if the bound does not fall, so the recorded bound never
   decreases (beyond its round-off); near an optimum the steps converge quadratically, so the
   answer does not depend on the path to it (the chunking of the data, a batch or a single fit)
@@ -67,6 +72,9 @@ _PRUNE_EVERY = 3
 _PRUNE_GAIN = 1e-3
 # a held <w_z> is freed when Newton alone would gain more than _RELEASE nats a sample on it
 _RELEASE = 1e-5
+# the ridge move (psi_x learned) follows a kept Newton step that gained at most _PRUNE_GAIN
+# nats per sample; each input's 1-D maximisation takes _RIDGE_ROUNDS safeguarded Newton steps
+_RIDGE_ROUNDS = 2
 
 
 class Result(NamedTuple):
@@ -383,6 +391,122 @@ def _prune_trial(theta, S: Stats, psx_c, hp: Hyper, thr):
     )
 
 
+class _Ridge(NamedTuple):
+    """What the ridge move holds of each input, ``(B, d)`` each (`_ridge_move`): ``a_z = k^2
+    tau v`` and ``b_x = tau v`` (``<w_z>^2 = a_z / (1 - r)``, ``<w_x>^2 = b_x (1 - r)``), ``q``,
+    ``kkv = k^2 v`` (``psi_z = q - kkv r / (1 - r)``), ``v`` (``psi_x = r v``) and ``cz = V_z /
+    psi_z``, ``cx = V_x / psi_x`` (the posterior variances scale with the noise variances)."""
+
+    a_z: torch.Tensor
+    b_x: torch.Tensor
+    q: torch.Tensor
+    kkv: torch.Tensor
+    v: torch.Tensor
+    cz: torch.Tensor
+    cx: torch.Tensor
+
+
+def _ridge_terms(e: torch.Tensor, fixed: _Ridge, hp: Hyper):
+    """An input's terms of the bound that move along its ridge, at ``e = r / (1 - r)``:
+    ``-a log b + (log V_z + log V_x) / 2`` (``- lam <w_x^2> / 2`` with alpha on w_z alone)
+    less a constant, and ``psi_z``, ``psi_x``."""
+    omr = 1.0 / (e + 1.0)  # 1 - r
+    r = e * omr
+    psz = fixed.q - fixed.kkv * e
+    psx = r * fixed.v
+    wz = (e + 1.0) * fixed.a_z + psz * fixed.cz
+    wx = omr * fixed.b_x + psx * fixed.cx
+    b = (0.5 * (wz + wx) if hp.shared else 0.5 * wz) + hp.b0
+    f = -hp.a * torch.log(b) + 0.5 * (torch.log(psz) + torch.log(r))
+    if not hp.shared:
+        f = f - 0.5 * hp.lam * wx
+    return f, psz, psx
+
+
+def _ridge_slope(e: torch.Tensor, fixed: _Ridge, hp: Hyper):
+    """The first and second derivatives of `_ridge_terms` in ``u = log e``: with ``r' = r (1 -
+    r)``, ``<w_z^2>`` and ``psi_z`` move as ``e``, ``<w_x^2>`` and ``psi_x`` as ``r'``."""
+    omr = 1.0 / (e + 1.0)
+    r = e * omr
+    rr = r * omr  # dr / du
+    rr2 = rr * (omr - r)  # d2r / du2
+    psz = fixed.q - fixed.kkv * e
+    dz = e * (fixed.a_z - fixed.cz * fixed.kkv)  # d<w_z^2>/du = its second derivative
+    sx = fixed.cx * fixed.v - fixed.b_x
+    wz = (e + 1.0) * fixed.a_z + psz * fixed.cz
+    wx = omr * fixed.b_x + r * fixed.v * fixed.cx
+    if hp.shared:
+        b, db, db2 = 0.5 * (wz + wx) + hp.b0, 0.5 * (dz + rr * sx), 0.5 * (dz + rr2 * sx)
+    else:
+        b, db, db2 = 0.5 * wz + hp.b0, 0.5 * dz, 0.5 * dz
+    lb1 = db / b
+    lz1 = -fixed.kkv * e / psz
+    g = -hp.a * lb1 + 0.5 * (lz1 + omr)
+    h = -hp.a * (db2 / b - lb1 * lb1) + 0.5 * (lz1 - lz1 * lz1 - rr)
+    if not hp.shared:
+        g = g - 0.5 * hp.lam * rr * sx
+        h = h - 0.5 * hp.lam * rr2 * sx
+    return g, h
+
+
+def _ridge_move(theta: torch.Tensor, hp: Hyper) -> tuple[torch.Tensor, torch.Tensor]:
+    """The fitting note's ridge move (``../shared/docs/bayesian-jfa-fitting.md``, move 1),
+    psi_x learned: each input moved along ``r = psi_x / v`` in (0, 1) with its ``v``, ``k``,
+    ``q`` and ``tau`` held, so that the data's part of the bound (through ``v``, ``k`` and
+    ``c``) stays and only the input's own prior and entropy terms change; each ``r``
+    maximises those (`_ridge_terms`) by `_RIDGE_ROUNDS` Newton steps in ``log(r / (1 - r))``,
+    each kept only if the terms rise (halved up to twice), with ``psi_z`` and ``psi_x`` above
+    the floor. No mat-vec. ``theta (B, P)`` packed (`_pack`, psi_x free): ``(theta', gain
+    (B,))``, the gain the bound's exact change (up to round-off). Newton on the bound moves
+    along these ridges (``psi_x`` trading against ``<w_x>^2``) slowly: the ridge is curved,
+    and its curvature across grows with ``N``."""
+    B, P = theta.shape
+    d = (P - 1) // 6
+    mz, mx = theta[:, :d], theta[:, d : 2 * d]
+    vz, vx, psz, psx = (torch.exp(theta[:, i * d : (i + 1) * d]) for i in (2, 3, 4, 5))
+    tau = 1.0 + vz / psz + vx / psx
+    v = mx * mx / tau + psx
+    k = mz * mx / (tau * v)
+    q = psz + mz * mz * psx / (tau * v)
+    fixed = _Ridge(k * k * tau * v, tau * v, q, k * k * v, v, vz / psz, vx / psx)
+    live = mx != 0  # where <w_x> = 0 the input is pruned: r = 1
+    e = torch.where(live, psx / (v - psx), 1.0)
+    ok = live & (e > 0) & torch.isfinite(e)
+    e = torch.where(ok, e, 1.0)
+    f0 = _ridge_terms(e, fixed, hp)[0]
+    u, f = torch.log(e), f0
+    half = torch.tensor([1.0, 0.5, 0.25], dtype=theta.dtype, device=theta.device)[:, None, None]
+    for _ in range(_RIDGE_ROUNDS):
+        g, h = _ridge_slope(torch.exp(u), fixed, hp)
+        du = torch.where(h < 0, -g / torch.where(h < 0, h, -1.0), torch.sign(g))
+        du = torch.where(torch.isfinite(du), du.clamp(-2.0, 2.0), 0.0)
+        cand = u + half * du  # (3, B, d)
+        fc, pz, px = _ridge_terms(torch.exp(cand), fixed, hp)
+        fc = torch.where((pz >= hp.floor) & (px >= hp.floor) & torch.isfinite(fc), fc, -torch.inf)
+        better = fc > f
+        first = torch.where(better.any(0), better.to(torch.int8).argmax(0), 0)
+        take = ok & better.any(0)
+        u = torch.where(take, cand.gather(0, first[None])[0], u)
+        f = torch.where(take, fc.gather(0, first[None])[0], f)
+    moved = ok & (f > f0)
+    e = torch.exp(u)
+    omr = 1.0 / (e + 1.0)
+    r = e * omr
+    psz_n = fixed.q - fixed.kkv * e
+    psx_n = r * fixed.v
+    new = [
+        torch.sign(mz) * torch.sqrt((e + 1.0) * fixed.a_z),
+        torch.sign(mx) * torch.sqrt(omr * fixed.b_x),
+        torch.log(fixed.cz * psz_n),
+        torch.log(fixed.cx * psx_n),
+        torch.log(psz_n),
+        torch.log(psx_n),
+    ]
+    cols = [torch.where(moved, n, theta[:, i * d : (i + 1) * d]) for i, n in enumerate(new)]
+    gain = torch.where(moved, f - f0, 0.0).sum(-1)
+    return torch.cat(cols + [theta[:, -1:]], -1), gain
+
+
 def run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=None) -> Result:
     """`_run_newton` on one thread (`torchjfa._threads.single_thread`): the optimiser's kernels
     are small (``r x r`` blocks, ``(d + 1) x (d + 1)`` matrices); on a busy 2-core machine,
@@ -518,6 +642,19 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
         held = held | ((found & ~released)[..., None] & pruned)
         theta = torch.where(accept[..., None], th_t, theta)
         L = torch.where(accept, L_t, L)
+        # after a kept Newton step that gained little, the ridge move (psi_x learned)
+        ridged = torch.zeros_like(live)
+        if hp.bayes and not hp.fixed_x:
+            want = newton & accept & (dL <= _PRUNE_GAIN * flat.n)
+            if bool(want.any()):
+                rows = Rows(want)
+                th_r, gain_r = _ridge_move(rows.take(theta), hp)
+                L_r = _theta_bound(th_r, *rows.stats(flat), rows.take(psx_c), hp)
+                ok_r = (L_r > rows.take(L)) & (gain_r > rows.take(roundoff))
+                rows.put(theta, torch.where(ok_r[:, None], th_r, rows.take(theta)))
+                rows.put(L, torch.where(ok_r, L_r, rows.take(L)))
+                rows.put(ridged, ok_r)
+                n_estep = n_estep + want.long()
         stale = stale | accept
         n_acc = n_acc + accept.long()
         # Levenberg-Marquardt damping, Nielsen's rule: less after a kept step the quadratic
@@ -529,14 +666,17 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             lam = torch.where(newton & accept, (lam * down).clamp_min(_LM_FLOOR), lam)
         lam = torch.where(rejected, lam * nu, lam)
         nu = torch.where(rejected, 2.0 * nu, torch.where(newton & accept, 2.0, nu))
-        converged = newton & accept & (dL <= thr) & (dth <= coef_tol) & stops
+        # (a ridge move after the step gained beyond round-off: not converged)
+        converged = newton & accept & (dL <= thr) & (dth <= coef_tol) & stops & ~ridged
         # damped steps are short along weakly curved directions (the psi_x / w_x^2 ridge):
         # before a convergence counts, Newton runs on with the damping at its floor
         polish = (converged | (small & accept)) & ~polished & (lam > _LM_POLISH)
         lam = torch.where(polish, _LM_FLOOR, lam)
         polished = polished | polish
         converged = converged & ~polish
-        n_small = torch.where(newton, torch.where(small & accept, n_small + 1, 0), n_small)
+        n_small = torch.where(
+            newton, torch.where(small & accept & ~ridged, n_small + 1, 0), n_small
+        )
         tiny = (small & ~accept) | (n_small >= _SMALL_RUN)  # nothing left the bound can see
         stuck = rejected & (lam > _LM_MAX)  # no damping finds an ascent: stationary
         failed = pruning & ~found & ~forced  # no prune gains at a stationary point: the optimum
