@@ -521,7 +521,9 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
 
     An iteration is one damped Newton trial or one prune trial, and the bound after it is
     recorded (the first record is the bound at ``(st, psy)``); a trial is kept only if the
-    bound rises. Newton has converged when a kept step changes the bound by at most
+    bound rises. Where psi_x is learned, a kept Newton step that gained at most
+    ``_PRUNE_GAIN`` nats a sample is followed in the same iteration by `_ridge_move`, kept if
+    the bound rises beyond its round-off (then that step is no convergence). Newton has converged when a kept step changes the bound by at most
     ``tol * max(|L|, N)`` and no coordinate by more than ``coef_tol`` (means in standardised
     units, log-variances), or when the next step's first-order gain is at round-off level, or
     when no damping finds an ascent; then the prune trial runs, and the problem stops
