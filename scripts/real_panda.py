@@ -295,7 +295,11 @@ def origins(
     print(f"{'T, s':>6} {'inside':>6} {'defaults':>15} {head} {'best OLS':>8} {'vs':>7}", file=out)
     for t in times:
         t_split = _split_time(log) if t is None else float(log.t[0]) + float(t)
-        ev = _evaluation(log, t_split, t_split + 2.0 / EVAL_CUTOFF_HZ + window_s)
+        t_end = t_split + 2.0 / EVAL_CUTOFF_HZ + window_s
+        if not float(log.t[0]) < t_split < t_end <= float(log.t[-1]) + window_s / 2:
+            print(f"{t_split - float(log.t[0]):6.2f}: no window of the log here, skipped", file=out)
+            continue
+        ev = _evaluation(log, t_split, t_end)
         with tempfile.TemporaryDirectory() as tmp:
             files = _split(log, t_split, Path(tmp))
             d, cutoff = _mean_rms(files, ev, base)
@@ -318,6 +322,8 @@ def origins(
             file=out,
             flush=True,
         )
+    if not results:
+        return results
     mean = statistics.fmean
     d = mean([r["defaults"] for r in results])
     fixed = {c: mean([r["ols"][c] for r in results]) for c in cutoffs}

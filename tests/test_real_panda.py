@@ -82,3 +82,7 @@ def test_the_split_points_table_judges_each_row_on_its_window(script):
     # the printed comparison is the returned one
     assert f"{100 * (1 - r['defaults'] / r['ols'][8.0]):+.1f} %" in text
     assert "mean over the 1 splits" in text
+    # a split point past the log's end is skipped with a line, not a traceback
+    out = io.StringIO()
+    assert script.origins(DATA, times=(60.0,), window_s=1.0, cutoffs=(8.0,), out=out) == []
+    assert "skipped" in out.getvalue()
