@@ -264,7 +264,7 @@ def test_the_ridge_move_keeps_the_fit_and_maximises_each_inputs_terms_along_its_
             batch = jb.Stats(*(t[None] for t in S))
             psx_c = st[jb.PX][None]
             L0 = jf._theta_bound(theta, *batch, psx_c, hp)
-            new, gain = jf._ridge_move(theta, hp)
+            new, gain = jf._ridge_move(theta, psx_c, hp)
             L1 = jf._theta_bound(new, *batch, psx_c, hp)
             assert float(gain) > 0
             assert float(L1 - L0) == pytest.approx(float(gain), rel=1e-6, abs=1e-9 * float(S.n))

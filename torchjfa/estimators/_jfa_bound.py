@@ -230,11 +230,22 @@ def optimal_rate(st: torch.Tensor, hp: Hyper) -> torch.Tensor:
     return 0.5 * (wz + _row(st, MX) ** 2 + _row(st, VX)) + hp.b0
 
 
+def data_terms(mz, mx, vz, vx, psz, psx):
+    """What the data see of each input, ``(*batch, d)`` each: ``tau = 1 + V_z / psi_z + V_x /
+    psi_x``, the model's variance of ``x_m`` ``v = <w_x>^2 / tau + psi_x``, the noisy-input
+    predictor ``k = <w_z><w_x> / (tau v)`` (eq. 3) and the input's share of ``c``, ``q = psi_z +
+    <w_z>^2 psi_x / (tau v)`` (`reduced_bound`): ``(tau, v, k, q)``."""
+    tau = 1.0 + vz / psz + vx / psx
+    v = mx * mx / tau + psx
+    k = mz * mx / (tau * v)
+    q = psz + mz * mz * psx / (tau * v)
+    return tau, v, k, q
+
+
 def predictor(st: torch.Tensor) -> torch.Tensor:
     """The noisy-input predictor ``k`` (eq. 3) of a state, ``(*batch, d)``."""
     mz, mx, vz, vx, _, psz, psx = st.unbind(-2)
-    tau = 1.0 + vz / psz + vx / psx
-    return mz * mx / (tau * (mx * mx / tau + psx))
+    return data_terms(mz, mx, vz, vx, psz, psx)[2]
 
 
 def reduced_bound(
@@ -268,10 +279,7 @@ def reduced_bound(
         ``(*batch,)`` the bound, nats (equal to `estep`'s ``L`` plus `bound_const`).
     """
     n = S.n
-    tau = 1.0 + vz / psz + vx / psx
-    v = mx * mx / tau + psx
-    k = mz * mx / (tau * v)
-    q = psz + mz * mz * psx / (tau * v)
+    tau, v, k, q = data_terms(mz, mx, vz, vx, psz, psx)
     c = psy + q.sum(-1)
     S_ee = S.yy - 2.0 * (k * S.xy).sum(-1) + (k * matvec(S.xx, k)).sum(-1)
     d = mz.shape[-1]

@@ -338,10 +338,7 @@ def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
     Its gain is exact: the change of ``S_ee`` (through ``k_m`` alone) and of the input's own
     terms."""
     mz, mx, vz, vx, psz, psx, psy = _unpack(theta, psx_c, hp)
-    tau = 1.0 + vz / psz + vx / psx
-    v = mx * mx / tau + psx
-    k = mz * mx / (tau * v)
-    q = psz + mz * mz * psx / (tau * v)
+    tau, v, k, q = jb.data_terms(mz, mx, vz, vx, psz, psx)
     c = psy + q.sum(-1)
     s_xe = S.xy - jb.matvec(S.xx, k)
     both = hp.shared and not hp.fixed_x  # prune w_x too (psi_x takes v), else w_z alone
@@ -449,25 +446,20 @@ def _ridge_slope(e: torch.Tensor, fixed: _Ridge, hp: Hyper):
     return g, h
 
 
-def _ridge_move(theta: torch.Tensor, hp: Hyper) -> tuple[torch.Tensor, torch.Tensor]:
+def _ridge_move(theta: torch.Tensor, psx_c, hp: Hyper) -> tuple[torch.Tensor, torch.Tensor]:
     """The fitting note's ridge move (``../shared/docs/bayesian-jfa-fitting.md``, move 1),
     psi_x learned: each input moved along ``r = psi_x / v`` in (0, 1) with its ``v``, ``k``,
     ``q`` and ``tau`` held, so that the data's part of the bound (through ``v``, ``k`` and
     ``c``) stays and only the input's own prior and entropy terms change; each ``r``
     maximises those (`_ridge_terms`) by `_RIDGE_ROUNDS` Newton steps in ``log(r / (1 - r))``,
     each kept only if the terms rise (halved up to twice), with ``psi_z`` and ``psi_x`` above
-    the floor. No mat-vec. ``theta (B, P)`` packed (`_pack`, psi_x free): ``(theta', gain
-    (B,))``, the gain the bound's exact change (up to round-off). Newton on the bound moves
+    the floor. No mat-vec. ``theta (B, P)`` packed (`_pack`, psi_x free; ``psx_c`` as for
+    `_unpack`): ``(theta', gain (B,))``, the gain the bound's exact change (up to round-off). Newton on the bound moves
     along these ridges (``psi_x`` trading against ``<w_x>^2``) slowly: the ridge is curved,
     and its curvature across grows with ``N``."""
-    B, P = theta.shape
-    d = (P - 1) // 6
-    mz, mx = theta[:, :d], theta[:, d : 2 * d]
-    vz, vx, psz, psx = (torch.exp(theta[:, i * d : (i + 1) * d]) for i in (2, 3, 4, 5))
-    tau = 1.0 + vz / psz + vx / psx
-    v = mx * mx / tau + psx
-    k = mz * mx / (tau * v)
-    q = psz + mz * mz * psx / (tau * v)
+    d = psx_c.shape[-1]
+    mz, mx, vz, vx, psz, psx, _ = _unpack(theta, psx_c, hp)
+    tau, v, k, q = jb.data_terms(mz, mx, vz, vx, psz, psx)
     fixed = _Ridge(k * k * tau * v, tau * v, q, k * k * v, v, vz / psz, vx / psx)
     live = mx != 0  # where <w_x> = 0 the input is pruned: r = 1
     e = torch.where(live, psx / (v - psx), 1.0)
@@ -523,7 +515,8 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
     recorded (the first record is the bound at ``(st, psy)``); a trial is kept only if the
     bound rises. Where psi_x is learned, a kept Newton step that gained at most
     ``_PRUNE_GAIN`` nats a sample is followed in the same iteration by `_ridge_move`, kept if
-    the bound rises beyond its round-off (then that step is no convergence). Newton has converged when a kept step changes the bound by at most
+    the bound rises beyond its round-off (then that step is no convergence). Newton has
+    converged when a kept step changes the bound by at most
     ``tol * max(|L|, N)`` and no coordinate by more than ``coef_tol`` (means in standardised
     units, log-variances), or when the next step's first-order gain is at round-off level, or
     when no damping finds an ascent; then the prune trial runs, and the problem stops
@@ -650,7 +643,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             want = newton & accept & (dL <= _PRUNE_GAIN * flat.n)
             if bool(want.any()):
                 rows = Rows(want)
-                th_r, gain_r = _ridge_move(rows.take(theta), hp)
+                th_r, gain_r = _ridge_move(rows.take(theta), rows.take(psx_c), hp)
                 L_r = _theta_bound(th_r, *rows.stats(flat), rows.take(psx_c), hp)
                 ok_r = (L_r > rows.take(L)) & (gain_r > rows.take(roundoff))
                 rows.put(theta, torch.where(ok_r[:, None], th_r, rows.take(theta)))
