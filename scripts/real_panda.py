@@ -71,6 +71,7 @@ JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 HOLDOUT = 0.2
 EVAL_CUTOFF_HZ = 10.0  # fixed before any row was run; none of the rows' choices
 FRICTION = "viscous,coulomb,offset"
+FRICTION_TERMS = tuple(FRICTION.split(","))
 HAND_CUTOFFS = (5.0, 8.0, 12.0, 20.0)
 JFA_CONFIGS = (
     {"estimator": "bayes-jfa"},
@@ -157,7 +158,7 @@ def _hand_tuned(base: torchjfa.Options, cutoff: float) -> torchjfa.Options:
     """The reference: OLS, textbook Coulomb friction (sign(qd)), no prior, at ``cutoff``."""
     return base.replace(
         estimator="ols",
-        friction=tuple(FRICTION.split(",")),
+        friction=FRICTION_TERMS,
         cutoff=cutoff,
         coulomb_velocity=0.0,
         description_prior=None,
@@ -230,7 +231,7 @@ def run(folder: str | Path = DATA, *, smoke: bool = False, out=sys.stdout) -> di
             smooth = [
                 row(
                     f"defaults at {c:g} Hz",
-                    base.replace(estimator="ols", friction=tuple(FRICTION.split(",")), cutoff=c),
+                    base.replace(estimator="ols", friction=FRICTION_TERMS, cutoff=c),
                 )
                 for c in cutoffs
             ]
