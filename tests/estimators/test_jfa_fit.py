@@ -58,20 +58,24 @@ def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(
         assert float(reduced) == pytest.approx(float(full), rel=1e-13)
         torch.testing.assert_close(jb.predictor(st), es[0], rtol=1e-12, atol=1e-14)
         st, psy = jb.update(S, es, R, c, S_ee, st, psy, hp)
-    # the structured gradient and Hessian of the Newton optimiser against plain autograd
-    theta = jf._pack(st, psy, hp)
+    # the structured gradient and Hessian of the Newton optimiser against plain autograd, at
+    # the EM state and at one moved off it (every coordinate, so no term of
+    # `_jfa_bound.input_curvature` sits at a special value)
+    theta0 = jf._pack(st, psy, hp)
     pc = st[jb.PX][None]
     batch = jb.Stats(*(t[None] for t in S))
-    cv = jn.derivatives(theta[None], batch, pc, hp)
-    g, H = cv.g, jn.dense_hessian(cv)
+    shift = 0.3 * torch.randn(theta0.shape, generator=torch.Generator().manual_seed(1), dtype=F64)
 
     def f(th):
         return jf._theta_bound(th[None], *batch, pc, hp)[0]
 
-    g_ref = torch.func.grad(f)(theta)
-    H_ref = torch.autograd.functional.hessian(f, theta)
-    torch.testing.assert_close(g[0], g_ref, rtol=1e-12, atol=1e-12 * float(g_ref.abs().max()))
-    torch.testing.assert_close(H[0], H_ref, rtol=1e-12, atol=1e-12 * float(H_ref.abs().max()))
+    for theta in (theta0, theta0 + shift):
+        cv = jn.derivatives(theta[None], batch, pc, hp)
+        g, H = cv.g, jn.dense_hessian(cv, batch.xx)
+        g_ref = torch.func.grad(f)(theta)
+        H_ref = torch.autograd.functional.hessian(f, theta)
+        torch.testing.assert_close(g[0], g_ref, rtol=1e-12, atol=1e-12 * float(g_ref.abs().max()))
+        torch.testing.assert_close(H[0], H_ref, rtol=1e-12, atol=1e-12 * float(H_ref.abs().max()))
 
 
 VARIANTS = {
@@ -314,14 +318,14 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
             theta = jf._pack(st, psy, hp)[None]
             batch = jb.Stats(*(t[None] for t in S))
             cv = jn.derivatives(theta, batch, st[jb.PX][None], hp)
-            H = jn.dense_hessian(cv)
+            H = jn.dense_hessian(cv, batch.xx)
             # hold a few coordinates: the bound at theta where the gradient points below it
             lb = torch.where(
                 (cv.g <= 0) & (torch.arange(theta.shape[-1]) % 3 == it % 3), theta, -torch.inf
             )[0]
             for lam in (1e-6, 1e-3, 1.0, 1e2):
                 lam_t = torch.full((1,), lam, dtype=F64)
-                trial, ok, gain = jn.newton_step(theta, cv, lam_t, lb)[:3]
+                trial, ok, gain = jn.newton_step(theta, cv, lam_t, lb, batch.xx)[:3]
                 delta, ok_ref = _dense_newton_step(theta, cv.g, H, lam_t, lb)
                 A, a_psy = jn.block_part(theta, cv, lam_t, lb)[:2]
                 blocks_pd = bool((torch.linalg.eigvalsh(A) > 0).all() & (a_psy > 0).all())
@@ -363,19 +367,20 @@ def test_the_step_with_inputs_held_is_the_dense_one_on_the_other_inputs(
     theta, psx_c = torch.stack(thetas), torch.stack(pxs)
     batch = jb.Stats(*(torch.stack(t) for t in zip(*stats, strict=True)))
     cv = jn.derivatives(theta, batch, psx_c, hp)
-    H = jn.dense_hessian(cv)
+    H = jn.dense_hessian(cv, batch.xx)
     P = theta.shape[-1]
     hold = torch.nn.functional.pad(held, (0, P - d))
     lb = torch.full((P,), -torch.inf, dtype=F64).expand(2, P)
     taken = 0
     for lam in (1e-3, 1.0, 1e2, 1e4, 1e6):
         lam_t = torch.full((2,), lam, dtype=F64)
-        step = jn.newton_step(theta, cv, lam_t, lb, hold=hold)
+        step = jn.newton_step(theta, cv, lam_t, lb, batch.xx, hold=hold)
         assert step.size.tolist() == orders
         for i in range(2):
             cv_i = type(cv)(*(t[i : i + 1] for t in cv))
+            one = slice(i, i + 1)
             alone = jn.newton_step(
-                theta[i : i + 1], cv_i, lam_t[i : i + 1], lb[:1], hold=hold[i : i + 1]
+                theta[one], cv_i, lam_t[one], lb[:1], batch.xx[one], hold=hold[one]
             )
             for a, b in zip(alone, step, strict=True):
                 assert torch.equal(a[0], b[i])
@@ -582,7 +587,7 @@ def test_pruned_inputs_held_during_the_fit_end_at_the_full_bounds_stationary_poi
     theta = jf._pack(res.st, res.psy, hp)[None]
     batch = jb.Stats(*(t[None] for t in S))
     cv = jn.derivatives(theta, batch, res.st[jb.PX][None], hp)
-    H = jn.dense_hessian(cv)[0]
+    H = jn.dense_hessian(cv, batch.xx)[0]
     lb = torch.full(theta.shape[-1:], -torch.inf, dtype=F64)  # the floors, as in the fit
     lb[4 * d : (5 if fixed_x else 6) * d] = math.log(hp.floor)
     lb[-1] = math.log(hp.floor_y)

@@ -74,16 +74,16 @@ class Rows:
         self.idx = None if bool(mask.all()) else mask.nonzero()[:, 0]
 
     def take(self, t: torch.Tensor) -> torch.Tensor:
-        return t if self.idx is None else t[self.idx]
+        return t if self.idx is None else t.index_select(0, self.idx)
 
     def stats(self, S: Stats) -> Stats:
-        return S if self.idx is None else Stats(*(t[self.idx] for t in S))
+        return S if self.idx is None else Stats(*(self.take(t) for t in S))
 
     def put(self, dst: torch.Tensor, rows: torch.Tensor) -> None:
         if self.idx is None:
             dst.copy_(rows)
         else:
-            dst[self.idx] = rows
+            dst.index_copy_(0, self.idx, rows)
 
     def sub(self, inner: Rows) -> Rows:
         """The rows that ``inner`` (a selection of these rows) selects, as rows of the batch."""
@@ -327,110 +327,124 @@ def kl_terms(
 
 
 # ------------------------------------------------------- derivatives of each input's own terms
-class Jet:
-    """A ``(B, d)`` quantity with its gradient ``g (B, r, d)`` and Hessian ``h (B, r, r, d)``
-    with respect to ``r`` coordinates of each input, where input m's value depends on its own
-    coordinates alone (second-order forward mode: each derivative is written out once, per
-    operation, for all inputs at once). ``g`` and ``h`` broadcast: a coordinate starts as
-    ``g (1, r, 1)``, ``h (1, 1, 1, 1)``. Constants (floats, ``(B, d)`` or ``(B, 1)`` tensors)
-    combine with jets on the right of ``*``, ``+``, ``-`` and ``/``."""
+class InputTerms(NamedTuple):
+    """What `input_curvature` needs of each input at packed coordinates (`input_terms`), ``(B,
+    d)`` each: the means ``mz, mx``, the variances ``vz, vx, psz, psx``, ``a = V_z / psi_z``,
+    ``beta = V_x / psi_x``, ``c1 = a psi_x``, ``iT = 1 / T`` with ``T = tau v = <w_x>^2 +
+    psi_x + c1 + V_x``, the predictor ``k = <w_z><w_x> / T`` and the share ``q = psi_z +
+    <w_z>^2 psi_x / T`` of ``c``."""
 
-    __slots__ = ("v", "g", "h")
-
-    def __init__(self, v: torch.Tensor, g: torch.Tensor, h: torch.Tensor) -> None:
-        self.v, self.g, self.h = v, g, h
-
-    @staticmethod
-    def _up(c):  # a (B, d) constant against g (B, r, d) and h (B, r, r, d)
-        return (c[..., None, :], c[..., None, None, :]) if torch.is_tensor(c) else (c, c)
-
-    def __add__(self, o) -> Jet:
-        if isinstance(o, Jet):
-            return Jet(self.v + o.v, self.g + o.g, self.h + o.h)
-        return Jet(self.v + o, self.g, self.h)
-
-    __radd__ = __add__
-
-    def __neg__(self) -> Jet:
-        return Jet(-self.v, -self.g, -self.h)
-
-    def __sub__(self, o) -> Jet:
-        return self + (-o)
-
-    def __rsub__(self, o) -> Jet:
-        return (-self) + o
-
-    def __mul__(self, o) -> Jet:
-        if not isinstance(o, Jet):
-            c1, c2 = self._up(o)
-            return Jet(self.v * o, self.g * c1, self.h * c2)
-        a1, a2 = self._up(self.v)
-        b1, b2 = self._up(o.v)
-        cross = self.g[..., :, None, :] * o.g[..., None, :, :]
-        return Jet(
-            self.v * o.v,
-            a1 * o.g + b1 * self.g,
-            a2 * o.h + b2 * self.h + cross + cross.transpose(-3, -2),
-        )
-
-    __rmul__ = __mul__
-
-    def __truediv__(self, o) -> Jet:
-        return self * (o.recip() if isinstance(o, Jet) else 1.0 / o)
-
-    def _chain(self, f, f1, f2) -> Jet:
-        """``F(self)`` from ``F``, ``F'`` and ``F''`` at ``self.v``."""
-        gg = self.g[..., :, None, :] * self.g[..., None, :, :]
-        return Jet(
-            f,
-            f1[..., None, :] * self.g,
-            f1[..., None, None, :] * self.h + f2[..., None, None, :] * gg,
-        )
-
-    def exp(self) -> Jet:
-        e = torch.exp(self.v)
-        return self._chain(e, e, e)
-
-    def log(self) -> Jet:
-        i = 1.0 / self.v
-        return self._chain(torch.log(self.v), i, -i * i)
-
-    def recip(self) -> Jet:
-        i = 1.0 / self.v
-        return self._chain(i, -i * i, 2.0 * i * i * i)
+    mz: torch.Tensor
+    mx: torch.Tensor
+    vz: torch.Tensor
+    vx: torch.Tensor
+    psz: torch.Tensor
+    psx: torch.Tensor
+    a: torch.Tensor
+    beta: torch.Tensor
+    c1: torch.Tensor
+    iT: torch.Tensor
+    k: torch.Tensor
+    q: torch.Tensor
 
 
-def input_jets(th: torch.Tensor, psx_c: torch.Tensor, n: torch.Tensor, dg, hp: Hyper):
-    """Each input's own terms of the bound, its predictor ``k`` and its share ``q`` of ``c``
-    as `Jet` s in its coordinates ``th (B, r, d)``: ``<w_z>, <w_x>, log V_z, log V_x,
-    log psi_z`` and, unless psi_x is fixed (then ``psx_c (B, d)``), ``log psi_x``.
-
-    The own terms are ``-N/2 (log v + log tau) - (X^T X)_mm / (2 v)`` plus `kl_terms` less its
-    constant: with Q(alpha)'s rate ``b`` at its optimum, ``-a log b + (log V_z + log V_x) / 2``
-    (``- lam <w_x^2> / 2`` when alpha governs w_z alone). ``n (B,)``, ``dg (B, d)``.
-    """
-    B, r, d = th.shape
-    eye = torch.eye(r, dtype=th.dtype, device=th.device)
-    zero = th.new_zeros(1, 1, 1, 1)
-    mz, mx, lvz, lvx, lpsz, *rest = (Jet(th[:, i], eye[i][None, :, None], zero) for i in range(r))
-    vz, vx, psz = lvz.exp(), lvx.exp(), lpsz.exp()
+def input_terms(th: torch.Tensor, psx_c: torch.Tensor, hp: Hyper) -> InputTerms:
+    """`InputTerms` at each input's coordinates ``th (B, r, d)``: ``<w_z>, <w_x>, log V_z,
+    log V_x, log psi_z`` and, unless psi_x is fixed (then ``psx_c (B, d)``), ``log psi_x``."""
+    mz, mx = th[:, 0], th[:, 1]
+    vz, vx, psz = torch.exp(th[:, 2]), torch.exp(th[:, 3]), torch.exp(th[:, 4])
+    a = torch.exp(th[:, 2] - th[:, 4])
     if hp.fixed_x:
-        psx = psx_c
-        tau = (lvz - lpsz).exp() + vx * (1.0 / psx_c) + 1.0
+        psx, beta = psx_c, vx / psx_c
     else:
-        psx = rest[0].exp()
-        tau = (lvz - lpsz).exp() + (lvx - rest[0]).exp() + 1.0
-    mx2 = mx * mx
-    v = mx2 / tau + psx
-    itv = (tau * v).recip()
-    k = mz * mx * itv
-    mz2 = mz * mz
-    q = psz + mz2 * psx * itv
-    own = (v.log() + tau.log()) * (-0.5 * n[:, None]) - v.recip() * (0.5 * dg)
+        psx, beta = torch.exp(th[:, 5]), torch.exp(th[:, 3] - th[:, 5])
+    c1 = a * psx
+    iT = 1.0 / (mx * mx + psx + c1 + vx)
+    k = mz * mx * iT
+    q = psz + mz * mz * psx * iT
+    return InputTerms(mz, mx, vz, vx, psz, psx, a, beta, c1, iT, k, q)
+
+
+def input_curvature(t: InputTerms, g_k, g_c, n, dg, hp: Hyper, r: int):
+    """Each input's part of the bound's gradient and Hessian in its ``r`` coordinates
+    (`input_terms`), written out: ``(grad (B, r, d), hess (B, r, r, d), jk (B, r, d), jq (B,
+    r, d))``, the gradient and Hessian of ``F_m = f_m + g_k k_m + g_c q_m`` and the gradients
+    of ``k_m`` and ``q_m``, for ``g_k (B, d)``, ``g_c (B, 1)`` held (the data's part of the
+    bound, ``-N/2 log c - S_ee(k) / (2 c)``, to first order), ``n (B,)``, ``dg (B, d)``.
+
+    Input m's own terms are ``f = -N/2 (log v + log tau) - (X^T X)_mm / (2 v)`` plus
+    `kl_terms` less its constant, ``-a log b + (log V_z + log V_x) / 2`` (``- lam <w_x^2> /
+    2`` with alpha on w_z alone; ``b`` Q(alpha)'s optimal rate). With ``T = tau v = <w_x>^2 +
+    psi_x + V_z psi_x / psi_z + V_x``, ``F = -N/2 log T + M / T + g_c psi_z`` + the prior's
+    terms, where ``M = -(X^T X)_mm tau / 2 + g_k <w_z><w_x> + g_c <w_z>^2 psi_x``; ``T``,
+    ``M``, ``tau`` and ``b`` are sums of monomials in the means and of exponentials of the
+    log-variances, so their derivatives are sparse, and the Hessian is those, two rank-one
+    terms (of ``1 / T`` and ``log b``) and nothing else: a few full ``r x r`` products
+    instead of one per operation."""
+    mz, mx, vz, vx, psz, psx, a, beta, c1, iT, k, q = t
+    n = n[:, None]
+    hdg = 0.5 * dg
+    zero = torch.zeros_like(mz)
+    M = (g_k * mx + g_c * mz * psx) * mz - hdg * (1.0 + a + beta)
+    phi = (0.5 * n + M * iT) * iT  # -dF/dT
+    chi = (0.5 * n + 2.0 * M * iT) * iT * iT  # d2F/dT2
+    gT = torch.stack([zero, 2.0 * mx, c1, vx, -c1, psx + c1][:r], 1)  # dT
+    gM = [
+        g_k * mx + 2.0 * g_c * mz * psx,
+        g_k * mz,
+        -hdg * a,
+        -hdg * beta,
+        hdg * a,
+        hdg * beta + g_c * mz * mz * psx,
+    ]
+    gM = torch.stack(gM[:r], 1)
+    extra = [zero, zero, zero, zero, g_c * psz, zero]  # gradient beyond -N/2 log T + M / T
+    diag = [  # the Hessian's diagonal beyond the rank-one terms
+        2.0 * g_c * psx * iT,
+        -2.0 * phi,
+        -hdg * a * iT - phi * c1,
+        -hdg * beta * iT - phi * vx,
+        -hdg * a * iT - phi * c1 + g_c * psz,
+        (g_c * mz * mz * psx - hdg * beta) * iT - phi * (c1 + psx),
+    ]
+    off = {  # and its entries off the diagonal, (i, j) with i < j
+        (0, 1): g_k * iT,
+        (0, 5): 2.0 * g_c * mz * psx * iT,
+        (2, 4): hdg * a * iT + phi * c1,
+        (2, 5): -phi * c1,
+        (4, 5): phi * c1,
+        (3, 5): hdg * beta * iT,
+    }
+    p = 0.5 * chi[:, None] * gT - (iT * iT)[:, None] * gM
+    hess = gT[:, :, None] * p[:, None] + p[:, :, None] * gT[:, None]
     if hp.bayes:
-        wz, wx = mz2 + vz, mx2 + vx
-        b = ((wz + wx) if hp.shared else wz) * 0.5 + hp.b0
-        own = own + b.log() * (-hp.a) + (lvz + lvx) * 0.5
+        s = 1.0 if hp.shared else 0.0
+        b = 0.5 * (mz * mz + vz + s * (mx * mx + vx)) + hp.b0
+        ib = 1.0 / b
+        gb = torch.stack([mz, s * mx, 0.5 * vz, 0.5 * s * vx, zero, zero][:r], 1)
+        rb = gb * (math.sqrt(hp.a) * ib)[:, None]
+        hess = hess + rb[:, :, None] * rb[:, None]
+        aib = hp.a * ib
+        extra[0] = -aib * mz
+        extra[1] = -aib * s * mx
+        extra[2] = 0.5 - 0.5 * aib * vz
+        extra[3] = 0.5 - 0.5 * aib * s * vx
+        diag[0] = diag[0] - aib
+        diag[1] = diag[1] - aib * s
+        diag[2] = diag[2] - 0.5 * aib * vz
+        diag[3] = diag[3] - 0.5 * aib * s * vx
         if not hp.shared:
-            own = own + wx * (-0.5 * hp.lam)
-    return own, k, q
+            extra[1] = extra[1] - hp.lam * mx
+            extra[3] = extra[3] - 0.5 * hp.lam * vx
+            diag[1] = diag[1] - hp.lam
+            diag[3] = diag[3] - 0.5 * hp.lam * vx
+    grad = gM * iT[:, None] - phi[:, None] * gT + torch.stack(extra[:r], 1)
+    hess.diagonal(dim1=1, dim2=2).add_(torch.stack(diag[:r], -1))
+    for (i, j), h in off.items():
+        if j < r:
+            hess[:, i, j] += h
+            hess[:, j, i] += h
+    jk = torch.stack([mx * iT, mz * iT, zero, zero, zero, zero][:r], 1) - (k * iT)[:, None] * gT
+    jq = [2.0 * mz * psx * iT, zero, zero, zero, psz, mz * mz * psx * iT]
+    jq = torch.stack(jq[:r], 1) - ((q - psz) * iT)[:, None] * gT
+    return grad, hess, jk, jq

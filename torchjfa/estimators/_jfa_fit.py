@@ -237,24 +237,23 @@ def _theta_bound(theta, xx, xy, yy, n, psx_c, hp: Hyper) -> torch.Tensor:
 def _greedy_prunes(cand: _Prunes, S: Stats, thr) -> torch.Tensor:
     """The inputs that pruning one at a time prunes, the best first, each while it gains more
     than ``thr`` given the ones before it: ``(*batch, d)`` bool. A prune keeps ``c`` and
-    changes the other inputs' gains only through ``X^T e``, by ``(X^T X)_{:, j} k_j`` when
-    input j goes: ``O(d)`` a round, where the prunes one Newton cycle at a time cost about
-    four iterations each (``scripts/bench_fit_cost.py``)."""
-    gain, own = cand.gain, cand.own
+    changes the other inputs' gains only through ``X^T e``: when input j goes, input m's gain
+    changes by ``-k_m (X^T X)_mj k_j / c``, ``O(d)`` a round, where the prunes one Newton
+    cycle at a time cost about four iterations each (``scripts/bench_fit_cost.py``)."""
+    gain, k = cand.gain, cand.k
     pick = torch.zeros_like(gain, dtype=torch.bool)
-    k, s_xe = cand.k, cand.s_xe
+    rate = k / cand.c[..., None]
+    ninf = torch.tensor(-torch.inf, dtype=gain.dtype, device=gain.device)
     for _ in range(gain.shape[-1]):
-        gain = torch.where(pick, -torch.inf, gain)
         j = gain.argmax(-1, keepdim=True)
-        ok = gain.gather(-1, j)[..., 0] > thr
+        best = gain.gather(-1, j)
+        ok = best > thr[..., None]
         if not bool(ok.any()):
             break
-        hot = torch.nn.functional.one_hot(j[..., 0], gain.shape[-1]).bool() & ok[..., None]
         col = torch.gather(S.xx, -1, j[..., None].expand(*S.xx.shape[:-1], 1))[..., 0]
-        s_xe = s_xe + col * (k * hot).sum(-1, keepdim=True)
-        k = torch.where(hot, 0.0, k)
-        pick = pick | hot
-        gain = _prune_gains(k, s_xe, S.dg, cand.c, own, cand.k == 0)
+        gain = gain - rate * col * torch.where(ok, k.gather(-1, j), 0.0)
+        gain = gain.scatter(-1, j, torch.where(ok, ninf, best))
+        pick = pick.scatter(-1, j, ok | pick.gather(-1, j))
     return pick
 
 
@@ -318,17 +317,14 @@ class _Prunes(NamedTuple):
     """The prune move's candidates at one state (`_prune_candidates`): ``cols`` the state's
     ``mz, mx, vz, vx, psz, psx`` and ``new`` each input's values once pruned (dicts of
     ``(*batch, d)``), ``psy``; ``gain (*batch, d)`` each single prune's exact gain, nats;
-    ``k, s_xe (*batch, d)``, ``c (*batch,)`` and ``own (*batch, d)`` the part of each gain
-    that does not depend on the other inputs (for `_greedy_prunes`)."""
+    ``k (*batch, d)`` and ``c (*batch,)`` (for `_greedy_prunes`)."""
 
     cols: dict
     new: dict
     psy: torch.Tensor
     gain: torch.Tensor
     k: torch.Tensor
-    s_xe: torch.Tensor
     c: torch.Tensor
-    own: torch.Tensor
 
 
 def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
@@ -357,7 +353,7 @@ def _prune_candidates(theta, S: Stats, psx_c, hp: Hyper) -> _Prunes:
     own = own - 0.5 * S.dg * (1.0 / v_new - 1.0 / v)
     gain = _prune_gains(k, s_xe, S.dg, c, own, k == 0)
     cols = {"mz": mz, "mx": mx, "vz": vz, "vx": vx, "psz": psz, "psx": psx}
-    return _Prunes(cols, new, psy, gain, k, s_xe, c, own)
+    return _Prunes(cols, new, psy, gain, k, c)
 
 
 def _with_prunes(cand: _Prunes, pick: torch.Tensor, hp: Hyper) -> torch.Tensor:
@@ -591,7 +587,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
             )
             rows.put(lam, lam_i)
             rows.put(nu, nu_i)
-            step = newton_step(th_i, cv_i, lam_i, lb_i, blocks, hold_i)
+            step = newton_step(th_i, cv_i, lam_i, lb_i, flat.xx, blocks, hold_i, rows.idx)
             # the raises of the damping, and the solve at each problem's order (`Step`)
             solve = -(-(step.size**3) // (6 * d * d))
             rows.put(n_estep, rows.take(n_estep) + raises * block_cost + solve)
@@ -605,7 +601,7 @@ def _run_newton(S: Stats, st, psy, hp: Hyper, *, max_iter, tol, coef_tol, bar=No
                 inner = Rows(step.ok)
                 good = rows.sub(inner)
                 L_good = _theta_bound(
-                    inner.take(step.trial), *good.stats(flat), good.take(psx_c), hp
+                    inner.take(step.trial), *inner.stats(sub), good.take(psx_c), hp
                 )
                 good.put(L_n, L_good)
             # a step whose first-order gain the bound cannot resolve is judged by its model:

@@ -23,8 +23,8 @@ class Curvature(NamedTuple):
     (B, r, r, d)`` each input's own block, ``hpsy (B,)`` that of ``log psi_y``; ``J`` the
     Jacobian of ``(k, c)``, whose row ``k_m`` is ``jk (B, r, d)`` on input m's coordinates
     and whose row ``c`` is ``jq (B, r, d)`` and ``psy (B,)``; ``G`` the Hessian of
-    ``g(k, c) = -N/2 log c - S_ee(k) / (2 c)``: ``-xx / c`` (``xx (B, d, d)``, ``c (B,)``),
-    ``gkc (B, d)``, ``gcc (B,)``."""
+    ``g(k, c) = -N/2 log c - S_ee(k) / (2 c)``: ``-xx / c`` (``xx (B, d, d)`` the moments,
+    not held here: ``dg (B, d)`` its diagonal; ``c (B,)``), ``gkc (B, d)``, ``gcc (B,)``."""
 
     g: torch.Tensor
     hb: torch.Tensor
@@ -32,7 +32,7 @@ class Curvature(NamedTuple):
     jk: torch.Tensor
     jq: torch.Tensor
     psy: torch.Tensor
-    xx: torch.Tensor
+    dg: torch.Tensor
     c: torch.Tensor
     gkc: torch.Tensor
     gcc: torch.Tensor
@@ -44,35 +44,23 @@ def derivatives(theta, S: Stats, psx_c, hp: Hyper) -> Curvature:
     The bound is ``sum_m f_m(theta_m) + g(k, c)`` where input m's own terms ``f_m``, predictor
     ``k_m`` and share ``q_m`` of ``c = psi_y + sum q`` depend on its coordinates ``theta_m``
     alone. So the Hessian is block-diagonal (each input's Hessian of ``f_m + g_k k_m + g_c
-    q_m``, in second-order forward mode, `_jfa_bound.Jet`) plus ``J^T (d^2 g) J``. Cost: one
+    q_m``, written out in `_jfa_bound.input_curvature`) plus ``J^T (d^2 g) J``. Cost: one
     ``d x d`` mat-vec and ``O(r^2 d)``.
     """
     B, P = theta.shape
     d = S.xy.shape[-1]
     r = (P - 1) // d
-    own, k, q = jb.input_jets(theta[:, : r * d].reshape(B, r, d), psx_c, S.n, S.dg, hp)
+    terms = jb.input_terms(theta[:, : r * d].reshape(B, r, d), psx_c, hp)
     psy = torch.exp(theta[:, -1])
-    c = psy + q.v.sum(-1)
-    s_xe = S.xy - jb.matvec(S.xx, k.v)
-    S_ee = S.yy - (k.v * (S.xy + s_xe)).sum(-1)
+    c = psy + terms.q.sum(-1)
+    s_xe = S.xy - jb.matvec(S.xx, terms.k)
+    S_ee = S.yy - (terms.k * (S.xy + s_xe)).sum(-1)
     g_k = s_xe / c[:, None]  # (B, d)
     g_c = -0.5 * S.n / c + 0.5 * S_ee / (c * c)
     g_cc = 0.5 * S.n / (c * c) - S_ee / (c * c * c)
-    grad = own.g + g_k[:, None] * k.g + g_c[:, None, None] * q.g
-    hb = own.h + g_k[:, None, None] * k.h + g_c[:, None, None, None] * q.h
-    g = torch.cat([grad.expand(B, r, d).reshape(B, r * d), (g_c * psy)[:, None]], -1)
-    return Curvature(
-        g,
-        hb.expand(B, r, r, d),
-        g_c * psy,
-        k.g.expand(B, r, d),
-        q.g.expand(B, r, d),
-        psy,
-        S.xx,
-        c,
-        -s_xe / (c * c)[:, None],
-        g_cc,
-    )
+    grad, hb, jk, jq = jb.input_curvature(terms, g_k, g_c[:, None], S.n, S.dg, hp, r)
+    g = torch.cat([grad.reshape(B, r * d), (g_c * psy)[:, None]], -1)
+    return Curvature(g, hb, g_c * psy, jk, jq, psy, S.dg, c, -s_xe / (c * c)[:, None], g_cc)
 
 
 def _jacobian(cv: Curvature) -> torch.Tensor:
@@ -83,23 +71,24 @@ def _jacobian(cv: Curvature) -> torch.Tensor:
     return torch.cat([torch.nn.functional.pad(Jk, (0, 1)), Jc], -2)
 
 
-def _coupling(cv: Curvature) -> torch.Tensor:
-    """``G`` of `Curvature`, ``(B, d + 1, d + 1)``."""
-    top = torch.cat([-cv.xx / cv.c[:, None, None], cv.gkc[..., None]], -1)
+def _coupling(cv: Curvature, xx) -> torch.Tensor:
+    """``G`` of `Curvature` with its moments ``xx (B, d, d)``, ``(B, d + 1, d + 1)``."""
+    top = torch.cat([-xx / cv.c[:, None, None], cv.gkc[..., None]], -1)
     return torch.cat([top, torch.cat([cv.gkc, cv.gcc[:, None]], -1)[:, None]], -2)
 
 
-def dense_hessian(cv: Curvature) -> torch.Tensor:
-    """The Hessian of `Curvature` as a dense ``(B, P, P)`` matrix (the tests' reference)."""
+def dense_hessian(cv: Curvature, xx) -> torch.Tensor:
+    """The Hessian of `Curvature` (moments ``xx (B, d, d)``) as a dense ``(B, P, P)`` matrix
+    (the tests' reference)."""
     B, r, d = cv.jk.shape
     blk = torch.diag_embed(cv.hb).permute(0, 1, 3, 2, 4).reshape(B, r * d, r * d)
     H = torch.nn.functional.pad(blk, (0, 1, 0, 1))
     H[:, -1, -1] = cv.hpsy
     J = _jacobian(cv)
-    return H + J.mT @ _coupling(cv) @ J
+    return H + J.mT @ _coupling(cv, xx) @ J
 
 
-def _damping(theta, cv: Curvature, lam, lb, hold=None):
+def _damping(theta, cv: Curvature, lb, hold=None):
     """The free coordinates (``(B, P)`` bool: not held (``hold (B, P)`` bool, or None) and not
     at a lower bound with the gradient pointing below it) and Marquardt's damping ``lam
     diag|H|`` of the free ones, ``(B, P)``."""
@@ -109,7 +98,7 @@ def _damping(theta, cv: Curvature, lam, lb, hold=None):
     B, r, d = cv.jk.shape
     wcc = -cv.gcc[:, None, None]
     dk = -torch.diagonal(cv.hb, dim1=1, dim2=2).mT  # (B, r, d)
-    dk = dk + cv.jk * cv.jk * (cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None])[:, None]
+    dk = dk + cv.jk * cv.jk * (cv.dg / cv.c[:, None])[:, None]
     dk = dk - 2.0 * cv.gkc[:, None] * cv.jk * cv.jq + wcc * cv.jq * cv.jq
     diag = torch.cat([dk.reshape(B, r * d), (-cv.hpsy - cv.gcc * cv.psy * cv.psy)[:, None]], -1)
     diag = diag.abs() * free
@@ -117,24 +106,46 @@ def _damping(theta, cv: Curvature, lam, lb, hold=None):
     return free, torch.where(free, diag.clamp_min(1e-12 * scale), 1.0)
 
 
+class _Undamped(NamedTuple):
+    """The block part of the Newton matrix before damping (`_undamped`): ``A0 (B, d, r, r)``,
+    ``a0_psy (B,)``, ``free, damp (B, P)`` (`_damping`)."""
+
+    A0: torch.Tensor
+    a0_psy: torch.Tensor
+    free: torch.Tensor
+    damp: torch.Tensor
+
+    def take(self, idx: torch.Tensor) -> _Undamped:
+        return _Undamped(*(t[idx] for t in self))
+
+
+def _undamped(theta, cv: Curvature, lb, hold=None) -> _Undamped:
+    free, damp = _damping(theta, cv, lb, hold)
+    B, r, d = cv.jk.shape
+    fb = free[:, : r * d].reshape(B, r, d)
+    jk = cv.jk * fb
+    w_kk = cv.dg / cv.c[:, None]  # (B, d)
+    A0 = (-cv.hb + w_kk[:, None, None] * jk[:, :, None] * jk[:, None, :]) * (
+        fb[:, :, None] & fb[:, None, :]
+    )
+    return _Undamped(A0.permute(0, 3, 1, 2), torch.where(free[:, -1], -cv.hpsy, 0.0), free, damp)
+
+
+def _damped(base: _Undamped, lam):
+    """``(A, a_psy, free, damp, lam_d)`` of `block_part` from its undamped part."""
+    A0, a0_psy, free, damp = base
+    B, d, r, _ = A0.shape
+    lam_d = torch.where(free, lam[:, None] * damp, 1.0)
+    A = A0 + torch.diag_embed(lam_d[:, : r * d].reshape(B, r, d).mT)
+    return A, a0_psy + lam_d[:, -1], free, damp, lam_d
+
+
 def block_part(theta, cv: Curvature, lam, lb, hold=None):
     """The block-diagonal part ``A`` of the damped Newton matrix (`newton_step`): ``A (B, d, r,
     r)`` each input's block, ``a_psy (B,)`` that of ``log psi_y``, with ``free (B, P)``,
     ``damp (B, P)`` (`_damping`, ``hold`` the coordinates held) and ``lam_d = lam damp`` on
     the free coordinates."""
-    free, damp = _damping(theta, cv, lam, lb, hold)
-    B, r, d = cv.jk.shape
-    fb = free[:, : r * d].reshape(B, r, d)
-    fp = free[:, -1]
-    jk = cv.jk * fb
-    w_kk = cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None]  # (B, d)
-    A = (-cv.hb + w_kk[:, None, None] * jk[:, :, None] * jk[:, None, :]) * (
-        fb[:, :, None] & fb[:, None, :]
-    )
-    lam_d = torch.where(free, lam[:, None] * damp, 1.0)
-    A = A.permute(0, 3, 1, 2) + torch.diag_embed(lam_d[:, : r * d].reshape(B, r, d).mT)
-    a_psy = torch.where(fp, -cv.hpsy, 0.0) + lam_d[:, -1]  # (B,)
-    return A, a_psy, free, damp, lam_d
+    return _damped(_undamped(theta, cv, lb, hold), lam)
 
 
 class Blocks(NamedTuple):
@@ -151,8 +162,8 @@ class Blocks(NamedTuple):
     info: torch.Tensor
 
 
-def _blocks(theta, cv: Curvature, lam, lb, hold=None) -> Blocks:
-    part = block_part(theta, cv, lam, lb, hold)
+def _blocks(base: _Undamped, lam) -> Blocks:
+    part = _damped(base, lam)
     return Blocks(*part, *torch.linalg.cholesky_ex(part[0]))
 
 
@@ -170,7 +181,8 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float, hold=None):
     """
     lam, nu = lam.clone(), nu.clone()
     raises = torch.zeros(lam.shape, dtype=torch.int64, device=lam.device)
-    blocks = _blocks(theta, cv, lam, lb, hold)
+    base = _undamped(theta, cv, lb, hold)  # the same at every damping
+    blocks = _blocks(base, lam)
     while True:
         bad = ~((blocks.info == 0).all(-1) & (blocks.a_psy > 0)) & (lam <= lam_max)
         if not bool(bad.any()):
@@ -179,13 +191,7 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float, hold=None):
         lam[idx] = lam[idx] * nu[idx]
         nu[idx] = 2.0 * nu[idx]
         raises[idx] += 1
-        sub = _blocks(
-            theta[idx],
-            type(cv)(*(t[idx] for t in cv)),
-            lam[idx],
-            lb[idx],
-            None if hold is None else hold[idx],
-        )
+        sub = _blocks(base.take(idx), lam[idx])
         for kept, fresh in zip(blocks, sub, strict=True):
             kept[idx] = fresh
 
@@ -219,14 +225,20 @@ def _order(n: torch.Tensor, d: int) -> torch.Tensor:
 def _coupled(kkk: torch.Tensor, n: int) -> torch.Tensor:
     """The rows of the dense system that couple, ``(B, n)``: the inputs whose predictor moves
     (``kkk > 0``), padded up to order ``n`` with the first inputs that do not (whose rows of
-    ``C`` are the identity's), then ``d``, the row of ``c``."""
+    ``C`` are the identity's), then ``d``, the row of ``c``. At the full order ``d + 1``, all
+    inputs in their own order (`_capacitance_solve` then copies no entries of ``xx``)."""
     B, d = kkk.shape
-    order = torch.argsort((~(kkk > 0)).to(torch.int8), dim=-1, stable=True)[:, : n - 1]
+    if n == d + 1:
+        order = torch.arange(d, device=kkk.device).expand(B, d)
+    else:
+        order = torch.argsort((~(kkk > 0)).to(torch.int8), dim=-1, stable=True)[:, : n - 1]
     last = torch.full((B, 1), d, dtype=order.dtype, device=order.device)
     return torch.cat([order, last], -1)
 
 
-def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hold=None) -> Step:
+def newton_step(
+    theta, cv: Curvature, lam, lb, xx, blocks: Blocks | None = None, hold=None, bi=None
+) -> Step:
     """The projected, damped Newton step (`Step`).
 
     Coordinates held (``hold (B, P)`` bool, or None) or at their lower bound with the gradient
@@ -254,17 +266,18 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     calls this (`block_damping`, no trial needed). A dense ``P x P`` Cholesky (``P = r d + 1``)
     to decide those cases would cost about ``P^3 / (6 d^2)`` mat-vecs (2,800 at ``d = 77``),
     two hundred trials' worth. ``blocks``: the block part at this ``lam``, if at hand
-    (`block_damping`, with the same ``hold``).
+    (`block_damping`, with the same ``hold``). ``xx``: the moments, ``(B, d, d)``, or those of
+    a whole batch of which ``bi (B,)`` are the problems stepped (not copied).
     """
     if blocks is None:
-        blocks = _blocks(theta, cv, lam, lb, hold)
+        blocks = _blocks(_undamped(theta, cv, lb, hold), lam)
     A, a_psy, free, damp, lam_d, chol, info = blocks
     g = cv.g * free
     B, r, d = cv.jk.shape
     fb = free[:, : r * d].reshape(B, r, d)
     fp = free[:, -1]
     jk, jq, psy = cv.jk * fb, cv.jq * fb, cv.psy * fp
-    w_kk = cv.xx.diagonal(dim1=-2, dim2=-1) / cv.c[:, None]  # (B, d)
+    w_kk = cv.dg / cv.c[:, None]  # (B, d)
     rhs = torch.stack([g[:, : r * d].reshape(B, r, d), jk, jq], -1).permute(0, 2, 1, 3)
     z, yk, yq = torch.cholesky_solve(rhs, chol).unbind(-1)  # (B, d, r) each
     jk_t, jq_t = jk.mT, jq.mT  # (B, d, r)
@@ -283,9 +296,10 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     info_c = torch.zeros((B,), dtype=torch.int32, device=b.device)
     for n in sorted(set(size.tolist())):
         rows = jb.Rows(size == n)
-        G = tuple(rows.take(t) for t in (cv.xx, cv.c, cv.gkc, cv.gcc, w_kk))
+        bi_n = rows.idx if bi is None else rows.take(bi)
+        G = (xx,) + tuple(rows.take(t) for t in (cv.c, cv.gkc, cv.gcc, w_kk))
         u_n, info_n = _capacitance_solve(
-            G, _coupled(rows.take(kkk), n), *(rows.take(t) for t in (s, lc, lcc, b))
+            G, bi_n, _coupled(rows.take(kkk), n), *(rows.take(t) for t in (s, lc, lcc, b))
         )
         rows.put(u, u_n)
         rows.put(info_c, info_n)
@@ -303,48 +317,60 @@ def newton_step(theta, cv: Curvature, lam, lb, blocks: Blocks | None = None, hol
     return Step(trial, ok, (g * step).sum(-1), pred, size)
 
 
-def _capacitance_solve(G, idx, s, lc, lcc, b):
-    """The Woodbury part of `newton_step` on the coupled rows ``idx (B, n)`` (`_coupled`, the
-    last one c's): ``u = W b - W L C^{-1} L^T W b`` scattered to ``(B, d + 1)``, and the
-    Cholesky's ``info (B,)``; ``G = (xx, c, gkc, gcc, w_kk)`` (`_coupling_rows`). With
-    ``L = diag(sf) + e_c l^T`` (the arrowhead: ``l = (lc, 0)``), ``L^T W L``, ``L x`` and
-    ``L^T x`` cost ``O(n^2)``."""
-    B, d = s.shape
-    sf = torch.cat([s, lcc[:, None]], -1).gather(-1, idx)  # (B, n)
-    lv = torch.nn.functional.pad(lc, (0, 1)).gather(-1, idx)
-    W = _coupling_rows(*G, idx)
-    b = b.gather(-1, idx)
-    wd, wdd = W[:, :, -1], W[:, -1, -1]
-    swd = sf * wd
-    C = sf[:, :, None] * W * sf[:, None, :]
-    C = C + swd[:, :, None] * lv[:, None, :] + lv[:, :, None] * swd[:, None, :]
-    C = C + wdd[:, None, None] * lv[:, :, None] * lv[:, None, :]
-    C.diagonal(dim1=-2, dim2=-1).add_(1.0)
-    chol_c, info_c = torch.linalg.cholesky_ex(C)
-    Wb = jb.matvec(W, b)
-    ltw = sf * Wb + lv * Wb[:, -1, None]  # L^T W b
-    x = torch.cholesky_solve(ltw[..., None], chol_c)[..., 0]
-    lx = sf * x
-    lx[:, -1] += (lv * x).sum(-1)  # L x
-    u_c = Wb - jb.matvec(W, lx)
-    u = torch.zeros((B, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
-    return u, info_c
-
-
-def _coupling_rows(xx, c, gkc, gcc, w_kk, idx: torch.Tensor) -> torch.Tensor:
-    """``W = -G`` (`Curvature`: ``xx (B, d, d)``, ``c (B,)``, ``gkc (B, d)``, ``gcc (B,)``) less
-    the diagonal ``w_kk (B, d)`` moved into the blocks (`newton_step`), on the rows and columns
-    ``idx (B, n)`` (`_coupled`, the last one ``c``'s), ``(B, n, n)``."""
-    B, n = idx.shape
-    d = xx.shape[-1]
+def _capacitance_solve(G, bi, idx, s, lc, lcc, b):
+    """The Woodbury part of `newton_step` for the problems ``bi (Bn,)`` of the batch (None:
+    all of them), on their coupled rows ``idx (Bn, n)`` (`_coupled`, the last one c's): ``u =
+    W b - W L C^{-1} L^T W b`` scattered to ``(Bn, d + 1)``, and the Cholesky's ``info
+    (Bn,)``. ``G = (xx, c, gkc, gcc, w_kk)``: ``xx (B, d, d)`` of the whole batch (only the
+    coupled entries are copied), the others of these problems. ``W = -G`` (`Curvature`) less
+    the diagonal ``w_kk`` moved into the blocks: its ``k``-``k`` part is ``X / c -
+    diag(w_kk)`` with ``X`` the coupled rows and columns of ``xx``, its ``k``-``c`` part
+    ``kc = -gkc`` and its ``c``-``c`` entry ``wcc = -gcc``. With ``L = diag(sf) + e_c l^T``
+    (the arrowhead: ``l = (lc, 0)``, ``sf = (s, lcc)``), ``C = I + L^T W L`` is written out
+    on its blocks, and ``W x``, ``L x``, ``L^T x`` cost ``O(n^2)``: a few ``n x n`` passes
+    (the batch's cost is their memory traffic) to form ``C``, and two mat-vecs."""
+    xx, c, gkc, gcc, w_kk = G
+    Bn, n = idx.shape
+    d = s.shape[-1]
     ki = idx[:, :-1]
-    xx = xx.gather(-2, ki[:, :, None].expand(B, n - 1, d))
-    xx = xx.gather(-1, ki[:, None, :].expand(B, n - 1, n - 1))
-    top = xx / c[:, None, None]
-    top.diagonal(dim1=-2, dim2=-1).sub_(w_kk.gather(-1, ki))
-    kc = -gkc.gather(-1, ki)
-    top = torch.cat([top, kc[..., None]], -1)
-    return torch.cat([top, torch.cat([kc, -gcc[:, None]], -1)[:, None]], -2)
+    if bi is not None:
+        xx = xx.index_select(0, bi)
+    if n == d + 1:  # all inputs, in their order (`_coupled`)
+        XC = torch.nn.functional.pad(xx, (0, 1, 0, 1))
+    else:  # c's row and column gather anything: overwritten below
+        kf = torch.nn.functional.pad(ki, (0, 1))
+        XC = xx.reshape(Bn, d * d).gather(-1, (kf[:, :, None] * d + kf[:, None, :]).reshape(Bn, -1))
+        XC = XC.reshape(Bn, n, n)
+    X = XC[:, :-1, :-1]  # the coupled rows and columns of xx
+    sk, lk, bk, bc = s.gather(-1, ki), lc.gather(-1, ki), b.gather(-1, ki), b[:, d]
+    kc, wk, wcc, ic = -gkc.gather(-1, ki), w_kk.gather(-1, ki), -gcc, 1.0 / c
+
+    def w_times(vk, vc):  # W (vk, vc)
+        top = jb.matvec(X, vk) * ic[:, None] - wk * vk + kc * vc[:, None]
+        return top, (kc * vk).sum(-1) + wcc * vc
+
+    def pad(v):
+        return torch.nn.functional.pad(v, (0, 1))
+
+    m = pad(sk * kc + 0.5 * wcc[:, None] * lk)
+    lkp = pad(lk)
+    C = XC * pad(sk)[:, :, None]
+    C.mul_(pad(sk * ic[:, None])[:, None, :])
+    C.addcmul_(m[:, :, None], lkp[:, None, :]).addcmul_(lkp[:, :, None], m[:, None, :])
+    C.diagonal(dim1=-2, dim2=-1).add_(pad(1.0 - sk * sk * wk))
+    edge = lcc[:, None] * (sk * kc + wcc[:, None] * lk)
+    C[:, :-1, -1] = edge
+    C[:, -1, :-1] = edge
+    C[:, -1, -1] = lcc * lcc * wcc + 1.0
+    chol_c, info_c = torch.linalg.cholesky_ex(C, upper=True)
+    wbk, wbc = w_times(bk, bc)
+    ltw = torch.cat([sk * wbk + lk * wbc[:, None], (lcc * wbc)[:, None]], -1)  # L^T W b
+    x = torch.cholesky_solve(ltw[..., None], chol_c, upper=True)[..., 0]
+    xk, xc = x[:, :-1], x[:, -1]
+    wlk, wlc = w_times(sk * xk, lcc * xc + (lk * xk).sum(-1))  # W L x
+    u_c = torch.cat([wbk - wlk, (wbc - wlc)[:, None]], -1)
+    u = torch.zeros((Bn, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
+    return u, info_c
 
 
 def escapes(theta, cv: Curvature, lb, n, level: float) -> torch.Tensor:
@@ -352,6 +378,6 @@ def escapes(theta, cv: Curvature, lb, n, level: float) -> torch.Tensor:
     nats: ``g^2 / (2 |H|)`` along it (``g`` the gradient, ``|H|`` its Hessian diagonal of
     `_damping`), ``(B, d)`` bool; ``n (B,)`` the samples."""
     d = cv.jk.shape[-1]
-    _, diag = _damping(theta, cv, torch.zeros_like(n), lb)
+    _, diag = _damping(theta, cv, lb)
     gain = cv.g[:, :d] ** 2 / (2.0 * diag[:, :d])
     return gain > level * n[:, None]
