@@ -20,6 +20,7 @@ The state is one ``(*batch, 7, d)`` tensor with rows `MZ`, `MX` (the posterior m
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from typing import NamedTuple
 
@@ -100,6 +101,12 @@ def matvec(A: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (A * x[..., None, :]).sum(-1)
 
 
+@functools.lru_cache(maxsize=64)
+def _digamma(a: float) -> float:
+    """``digamma(a)`` of a Python float (Q(alpha)'s shape: one per fit, asked every bound)."""
+    return float(torch.special.digamma(torch.tensor(a, dtype=torch.float64)))
+
+
 def bound_const(n: torch.Tensor, d: int, hp: Hyper) -> torch.Tensor:
     """State-independent terms of the bound (the 2 pi's, the Gamma prior, the entropies).
 
@@ -112,7 +119,7 @@ def bound_const(n: torch.Tensor, d: int, hp: Hyper) -> torch.Tensor:
     const = n * (-0.5 * LOG_2PI * (1 + 3 * d) + d * (1.0 + LOG_2PI))
     if hp.bayes:
         a = hp.a
-        dig = float(torch.special.digamma(torch.tensor(a, dtype=torch.float64)))
+        dig = _digamma(a)
         k = 1.0 if hp.shared else 0.5  # loadings under alpha
         a0 = a - k
         per = (
@@ -305,7 +312,7 @@ def kl_terms(
     a = hp.a
     wz, wx = mz * mz + vz, mx * mx + vx
     b = 0.5 * (wz + wx if hp.shared else wz) + hp.b0
-    dig = float(torch.special.digamma(torch.tensor(a, dtype=torch.float64)))
+    dig = _digamma(a)
     k_a = 1.0 if hp.shared else 0.5  # loadings under alpha
     a0 = a - k_a
     elog = dig - torch.log(b)  # <log alpha>
