@@ -177,23 +177,40 @@ def block_damping(theta, cv: Curvature, lam, nu, lb, lam_max: float, hold=None):
     raises the damping; raising it here first costs one ``r x r`` Cholesky per input and raise
     instead of a refused trial (a ``(d + 1) x (d + 1)`` Cholesky and a bound). On the Fig. 2
     cells (``scripts/bench_fit_cost.py``) such refusals were 44 % of the trials. Only the
-    problems still indefinite are refactored. ``hold``: the coordinates held (`_damping`).
+    blocks still indefinite are refactored at each raise. ``hold``: the coordinates held
+    (`_damping`).
     """
     lam, nu = lam.clone(), nu.clone()
     raises = torch.zeros(lam.shape, dtype=torch.int64, device=lam.device)
     base = _undamped(theta, cv, lb, hold)  # the same at every damping
     blocks = _blocks(base, lam)
+    B, d, r, _ = base.A0.shape
+    free_b = base.free[:, : r * d].reshape(B, r, d)
+    damp_b = base.damp[:, : r * d].reshape(B, r, d)
+    # more damping keeps a definite block definite: each raise refactors the blocks that were
+    # not, and the problems raised are refactored whole once, at their last damping
+    bad_blk, bad_psy = blocks.info != 0, ~(blocks.a_psy > 0)
     while True:
-        bad = ~((blocks.info == 0).all(-1) & (blocks.a_psy > 0)) & (lam <= lam_max)
+        bad = (bad_blk.any(-1) | bad_psy) & (lam <= lam_max)
         if not bool(bad.any()):
-            return lam, nu, raises, blocks
-        idx = bad.nonzero()[:, 0]
-        lam[idx] = lam[idx] * nu[idx]
-        nu[idx] = 2.0 * nu[idx]
-        raises[idx] += 1
+            break
+        lam = torch.where(bad, lam * nu, lam)
+        nu = torch.where(bad, 2.0 * nu, nu)
+        raises = raises + bad.long()
+        bi, mi = (bad_blk & bad[:, None]).nonzero(as_tuple=True)
+        if bi.numel():
+            lam_d = torch.where(free_b[bi, :, mi], lam[bi, None] * damp_b[bi, :, mi], 1.0)
+            info = torch.linalg.cholesky_ex(base.A0[bi, mi] + torch.diag_embed(lam_d))[1]
+            bad_blk[bi, mi] = info != 0
+        a_psy = base.a0_psy + torch.where(base.free[:, -1], lam * base.damp[:, -1], 1.0)
+        bad_psy = bad_psy & ~(a_psy > 0)
+    raised = raises > 0
+    if bool(raised.any()):
+        idx = raised.nonzero()[:, 0]
         sub = _blocks(base.take(idx), lam[idx])
         for kept, fresh in zip(blocks, sub, strict=True):
             kept[idx] = fresh
+    return lam, nu, raises, blocks
 
 
 class Step(NamedTuple):
