@@ -344,8 +344,10 @@ def _capacitance_solve(G, bi, idx, s, lc, lcc, b):
     diag(w_kk)`` with ``X`` the coupled rows and columns of ``xx``, its ``k``-``c`` part
     ``kc = -gkc`` and its ``c``-``c`` entry ``wcc = -gcc``. With ``L = diag(sf) + e_c l^T``
     (the arrowhead: ``l = (lc, 0)``, ``sf = (s, lcc)``), ``C = I + L^T W L`` is written out
-    on its blocks, and ``W x``, ``L x``, ``L^T x`` cost ``O(n^2)``: a few ``n x n`` passes
-    (the batch's cost is their memory traffic) to form ``C``, and two mat-vecs."""
+    on its blocks, the ``k``-``k`` block ``K`` factored and c's row eliminated by its Schur
+    complement (``C`` is positive definite iff ``K`` and that complement are), and ``W x``,
+    ``L x``, ``L^T x`` cost ``O(n^2)``: a few ``n x n`` passes (a batch's cost is their memory
+    traffic) to form ``K``, and two mat-vecs."""
     xx, c, gkc, gcc, w_kk = G
     Bn, n = idx.shape
     d = s.shape[-1]
@@ -353,12 +355,10 @@ def _capacitance_solve(G, bi, idx, s, lc, lcc, b):
     if bi is not None:
         xx = xx.index_select(0, bi)
     if n == d + 1:  # all inputs, in their order (`_coupled`)
-        XC = torch.nn.functional.pad(xx, (0, 1, 0, 1))
-    else:  # c's row and column gather anything: overwritten below
-        kf = torch.nn.functional.pad(ki, (0, 1))
-        XC = xx.reshape(Bn, d * d).gather(-1, (kf[:, :, None] * d + kf[:, None, :]).reshape(Bn, -1))
-        XC = XC.reshape(Bn, n, n)
-    X = XC[:, :-1, :-1]  # the coupled rows and columns of xx
+        X = xx
+    else:
+        X = xx.reshape(Bn, d * d).gather(-1, (ki[:, :, None] * d + ki[:, None, :]).reshape(Bn, -1))
+        X = X.reshape(Bn, n - 1, n - 1)
     sk, lk, bk, bc = s.gather(-1, ki), lc.gather(-1, ki), b.gather(-1, ki), b[:, d]
     kc, wk, wcc, ic = -gkc.gather(-1, ki), w_kk.gather(-1, ki), -gcc, 1.0 / c
 
@@ -366,24 +366,21 @@ def _capacitance_solve(G, bi, idx, s, lc, lcc, b):
         top = jb.matvec(X, vk) * ic[:, None] - wk * vk + kc * vc[:, None]
         return top, (kc * vk).sum(-1) + wcc * vc
 
-    def pad(v):
-        return torch.nn.functional.pad(v, (0, 1))
-
-    m = pad(sk * kc + 0.5 * wcc[:, None] * lk)
-    lkp = pad(lk)
-    C = XC * pad(sk)[:, :, None]
-    C.mul_(pad(sk * ic[:, None])[:, None, :])
-    C.addcmul_(m[:, :, None], lkp[:, None, :]).addcmul_(lkp[:, :, None], m[:, None, :])
-    C.diagonal(dim1=-2, dim2=-1).add_(pad(1.0 - sk * sk * wk))
-    edge = lcc[:, None] * (sk * kc + wcc[:, None] * lk)
-    C[:, :-1, -1] = edge
-    C[:, -1, :-1] = edge
-    C[:, -1, -1] = lcc * lcc * wcc + 1.0
-    chol_c, info_c = torch.linalg.cholesky_ex(C, upper=True)
+    # C = [[K, e], [e^T, g]]: K factored, c's row by its Schur complement g - e^T K^-1 e
+    m = sk * kc + 0.5 * wcc[:, None] * lk
+    K = X * sk[:, :, None]
+    K.mul_((sk * ic[:, None])[:, None, :])
+    K.addcmul_(m[:, :, None], lk[:, None, :]).addcmul_(lk[:, :, None], m[:, None, :])
+    K.diagonal(dim1=-2, dim2=-1).add_(1.0 - sk * sk * wk)
+    e = lcc[:, None] * (sk * kc + wcc[:, None] * lk)
+    chol_k, info_k = torch.linalg.cholesky_ex(K)
     wbk, wbc = w_times(bk, bc)
-    ltw = torch.cat([sk * wbk + lk * wbc[:, None], (lcc * wbc)[:, None]], -1)  # L^T W b
-    x = torch.cholesky_solve(ltw[..., None], chol_c, upper=True)[..., 0]
-    xk, xc = x[:, :-1], x[:, -1]
+    rk, rc = sk * wbk + lk * wbc[:, None], lcc * wbc  # L^T W b
+    y, z = torch.cholesky_solve(torch.stack([e, rk], -1), chol_k).unbind(-1)
+    schur = lcc * lcc * wcc + 1.0 - (e * y).sum(-1)
+    xc = (rc - (e * z).sum(-1)) / schur
+    xk = z - y * xc[:, None]  # x = C^-1 L^T W b
+    info_c = torch.where(info_k != 0, info_k, torch.where(schur > 0, 0, n).to(info_k.dtype))
     wlk, wlc = w_times(sk * xk, lcc * xc + (lk * xk).sum(-1))  # W L x
     u_c = torch.cat([wbk - wlk, (wbc - wlc)[:, None]], -1)
     u = torch.zeros((Bn, d + 1), dtype=u_c.dtype, device=u_c.device).scatter(-1, idx, u_c)
