@@ -143,85 +143,24 @@ def choose_cutoff(
         LogError: a log too short for the blocks and the filter's reach, or no cut-off on the
             grid below the log's Nyquist frequency.
     """
-    grid = sorted(float(c) for c in (cutoff_grid() if grid_hz is None else grid_hz))
-    if not grid or any(not (math.isfinite(c) and c > 0) for c in grid):
-        raise ValueError(f"grid_hz must hold positive cut-offs, Hz, got {grid_hz!r}")
-    if isinstance(n_folds, bool) or not isinstance(n_folds, int) or n_folds < 2:
-        raise ValueError(f"n_folds must be an int of at least 2, got {n_folds!r}")
-    if tuple(log.joint_names) != tuple(model.joint_names):
-        raise ValueError(
-            f"the log's joints {tuple(log.joint_names)} are not the model's "
-            f"{tuple(model.joint_names)} in its order; use log.reorder(model.joint_names)"
-        )
-    if log.n_samples < 2 * (n_folds + 2):
-        raise LogError(
-            f"{log.source}: {log.n_samples} samples are too few to choose a cut-off by "
-            f"{n_folds} held-out blocks; give the cut-off (--cutoff HZ)"
-        )
-    uniform = log if is_uniform(log.t) else resample(log)
-    rate = uniform.rate_hz
-    grid = [c for c in grid if c < 0.45 * rate]
-    if not grid:
-        raise LogError(f"{log.source}: no cut-off on the grid lies below {0.45 * rate:.4g} Hz")
-    reach = 2.0 / grid[0] if reach_s is None else float(reach_s)
-    target_rate = 4.0 * grid[-1] if rate_hz is None else float(rate_hz)
-    k = max(1, int(rate // target_rate))
-    while k > 1 and grid[-1] >= 0.5 * rate / k:
-        k -= 1
-    if not uniform.duration > (n_folds + 2) * reach:
-        raise LogError(
-            f"{log.source}: {log.duration:.3g} s are too short to choose a cut-off by "
-            f"{n_folds} held-out blocks with the filter's reach of {reach:.3g} s (more than "
-            f"{(n_folds + 2) * reach:.3g} s needed); give the cut-off (--cutoff HZ)"
-        )
-    common = {"method": method, "velocity": velocity, "period_s": None, "edge_s": reach}
-    raw = prepare(uniform, cutoff_hz=grid[0], filter_torque=False, decimate=k, **common).tau
-    n, n_dof = raw.shape
-    gap = int(math.ceil(reach * rate / k))
-    bounds = [round(i * n / n_folds) for i in range(n_folds + 1)]
-    if min(b - a for a, b in zip(bounds, bounds[1:], strict=False)) < 2 or gap >= n // n_folds:
-        raise LogError(
-            f"{log.source}: {n} samples after decimation by {k} are too few to choose a "
-            f"cut-off by {n_folds} held-out blocks {gap} samples apart from their fits; give "
-            "the cut-off (--cutoff HZ)"
-        )
-    var = raw.var(0).clamp_min(1e-300)
-    idx = torch.arange(n)
+    grid = _check_arguments(model, log, grid_hz, n_folds)
+    folds = _Folds.of(log, grid, n_folds, method, velocity, reach_s, rate_hz)
     widths = _widths(model, coulomb_grid)
     errors, rms, by_width = [], [], []
-    for c in grid:
-        d = prepare(uniform, cutoff_hz=c, decimate=k, **common)
-        w = 1.0 / d.tau.std(0).clamp_min(1e-12)
-        tried = []
-        for v in widths:
-            m = model if v is None else model.with_coulomb_velocity(v)
-            Y = m.regressor(d.q, d.qd, d.qdd, compiled=compiled)
-            pred = torch.empty_like(raw)
-            with single_thread():  # small solves: threads only wait on a busy machine
-                for a, b in zip(bounds, bounds[1:], strict=False):
-                    fit = (idx < a - gap) | (idx >= b + gap)
-                    pred[a:b] = Y[a:b] @ _fit(Y[fit], d.tau[fit], w)
-            e2 = (pred - raw) ** 2
-            tried.append(((e2 / var).mean(1), float(e2.mean(0).sqrt().mean())))  # per-sample nMSE
-        j = min(range(len(tried)), key=lambda i: float(tried[i][0].mean()))
-        errors.append(tried[j][0])
-        rms.append(tried[j][1])
-        by_width.append((j, tuple(float(e.mean()) for e, _ in tried)))
+    for c in folds.grid:
+        e, r, j, per_width = _score(model, folds, c, widths, compiled)
+        errors.append(e)
+        rms.append(r)
+        by_width.append((j, per_width))
     E = torch.stack(errors)  # (n_grid, n)
-    scores = E.mean(1)
-    best = int(torch.argmin(scores))
-    n_blocks = max(2, min(20, n // max(1, int(0.5 * rate / k))))  # about 0.5 s blocks
-    blocks = torch.tensor_split(E - E[best], n_blocks, dim=1)
-    means = torch.stack([b.mean(1) for b in blocks], 1)  # (n_grid, n_blocks)
-    se = means.std(1) / math.sqrt(n_blocks)
-    within = [i for i in range(len(grid)) if float(scores[i] - scores[best]) <= float(se[i])]
-    pick = max(within)
+    scores, se, best, pick = _one_standard_error(E, folds)
+    grid = folds.grid
     shown = ", ".join(f"{c:g} Hz {float(s):.3g}" for c, s in zip(grid, scores, strict=True))
     how = (
         f"chosen by held-out torque prediction over {grid[0]:g}..{grid[-1]:g} Hz "
         f"({len(grid)} cut-offs; OLS with the model's joint terms, {n_folds} blocks held out in "
-        f"turn, {reach:.3g} s apart from their fits, scored against the unfiltered torque): "
-        f"mean nMSE {shown}; "
+        f"turn, {folds.reach:.3g} s apart from their fits, scored against the unfiltered "
+        f"torque): mean nMSE {shown}; "
         + (
             f"best {grid[best]:g} Hz"
             if pick == best
@@ -252,6 +191,132 @@ def choose_cutoff(
         coulomb_grid=() if chosen_v is None else tuple(widths),
         coulomb_scores=tuple(v_scores),
     )
+
+
+def _check_arguments(model, log: JointLog, grid_hz, n_folds) -> list[float]:
+    """Check `choose_cutoff`'s arguments; returns the grid, Hz, increasing."""
+    grid = sorted(float(c) for c in (cutoff_grid() if grid_hz is None else grid_hz))
+    if not grid or any(not (math.isfinite(c) and c > 0) for c in grid):
+        raise ValueError(f"grid_hz must hold positive cut-offs, Hz, got {grid_hz!r}")
+    if isinstance(n_folds, bool) or not isinstance(n_folds, int) or n_folds < 2:
+        raise ValueError(f"n_folds must be an int of at least 2, got {n_folds!r}")
+    if tuple(log.joint_names) != tuple(model.joint_names):
+        raise ValueError(
+            f"the log's joints {tuple(log.joint_names)} are not the model's "
+            f"{tuple(model.joint_names)} in its order; use log.reorder(model.joint_names)"
+        )
+    if log.n_samples < 2 * (n_folds + 2):
+        raise LogError(
+            f"{log.source}: {log.n_samples} samples are too few to choose a cut-off by "
+            f"{n_folds} held-out blocks; give the cut-off (--cutoff HZ)"
+        )
+    return grid
+
+
+@dataclass(frozen=True)
+class _Folds:
+    """The log on uniform time, and how `choose_cutoff` prepares it and holds blocks out.
+
+    Attributes:
+        uniform: the log on uniform time.
+        rate: its rate, Hz.
+        grid: the cut-offs tried, Hz (those below 0.45 ``rate``).
+        reach: the filter's reach, s: the samples this close to a held-out block are left out
+            of its fit.
+        k: the decimation factor of the prepared data.
+        common: `prepare`'s keyword arguments shared by every cut-off.
+        raw: ``(n, n_dof)`` the measured torque, not filtered, decimated: the target.
+        bounds: ``n_folds + 1`` sample indices of the blocks' edges.
+        gap: the reach in decimated samples.
+    """
+
+    uniform: JointLog
+    rate: float
+    grid: list[float]
+    reach: float
+    k: int
+    common: dict
+    raw: torch.Tensor
+    bounds: list[int]
+    gap: int
+
+    @classmethod
+    def of(cls, log, grid, n_folds, method, velocity, reach_s, rate_hz) -> _Folds:
+        """The folds of ``log``; raises `LogError` where it is too short for them."""
+        uniform = log if is_uniform(log.t) else resample(log)
+        rate = uniform.rate_hz
+        grid = [c for c in grid if c < 0.45 * rate]
+        if not grid:
+            raise LogError(f"{log.source}: no cut-off on the grid lies below {0.45 * rate:.4g} Hz")
+        reach = 2.0 / grid[0] if reach_s is None else float(reach_s)
+        target_rate = 4.0 * grid[-1] if rate_hz is None else float(rate_hz)
+        k = max(1, int(rate // target_rate))
+        while k > 1 and grid[-1] >= 0.5 * rate / k:
+            k -= 1
+        if not uniform.duration > (n_folds + 2) * reach:
+            raise LogError(
+                f"{log.source}: {log.duration:.3g} s are too short to choose a cut-off by "
+                f"{n_folds} held-out blocks with the filter's reach of {reach:.3g} s (more than "
+                f"{(n_folds + 2) * reach:.3g} s needed); give the cut-off (--cutoff HZ)"
+            )
+        common = {"method": method, "velocity": velocity, "period_s": None, "edge_s": reach}
+        raw = prepare(uniform, cutoff_hz=grid[0], filter_torque=False, decimate=k, **common).tau
+        n = raw.shape[0]
+        gap = int(math.ceil(reach * rate / k))
+        bounds = [round(i * n / n_folds) for i in range(n_folds + 1)]
+        if min(b - a for a, b in zip(bounds, bounds[1:], strict=False)) < 2 or gap >= n // n_folds:
+            raise LogError(
+                f"{log.source}: {n} samples after decimation by {k} are too few to choose a "
+                f"cut-off by {n_folds} held-out blocks {gap} samples apart from their fits; give "
+                "the cut-off (--cutoff HZ)"
+            )
+        return cls(uniform, rate, grid, reach, k, common, raw, bounds, gap)
+
+
+def _score(model, folds: _Folds, cutoff: float, widths: list, compiled):
+    """Held-out errors of one cut-off, with the best of the Coulomb smoothing velocities.
+
+    Returns:
+        ``(per-sample nMSE (n,), mean per-joint RMS error, index of the best width, mean nMSE
+        per width)``.
+    """
+    raw, bounds, gap = folds.raw, folds.bounds, folds.gap
+    var = raw.var(0).clamp_min(1e-300)
+    idx = torch.arange(raw.shape[0])
+    d = prepare(folds.uniform, cutoff_hz=cutoff, decimate=folds.k, **folds.common)
+    w = 1.0 / d.tau.std(0).clamp_min(1e-12)
+    tried = []
+    for v in widths:
+        m = model if v is None else model.with_coulomb_velocity(v)
+        Y = m.regressor(d.q, d.qd, d.qdd, compiled=compiled)
+        pred = torch.empty_like(raw)
+        with single_thread():  # small solves: threads only wait on a busy machine
+            for a, b in zip(bounds, bounds[1:], strict=False):
+                fit = (idx < a - gap) | (idx >= b + gap)
+                pred[a:b] = Y[a:b] @ _fit(Y[fit], d.tau[fit], w)
+        e2 = (pred - raw) ** 2
+        tried.append(((e2 / var).mean(1), float(e2.mean(0).sqrt().mean())))  # per-sample nMSE
+    j = min(range(len(tried)), key=lambda i: float(tried[i][0].mean()))
+    return tried[j][0], tried[j][1], j, tuple(float(e.mean()) for e, _ in tried)
+
+
+def _one_standard_error(E: torch.Tensor, folds: _Folds):
+    """The one-standard-error rule on per-sample errors ``E (n_grid, n)``.
+
+    Returns:
+        ``(scores (n_grid,), standard errors of each score's difference from the best one's,
+        index of the best, index of the largest cut-off within one standard error of it)``;
+        the standard errors from contiguous blocks of about 0.5 s.
+    """
+    scores = E.mean(1)
+    best = int(torch.argmin(scores))
+    n = E.shape[1]
+    n_blocks = max(2, min(20, n // max(1, int(0.5 * folds.rate / folds.k))))  # about 0.5 s blocks
+    blocks = torch.tensor_split(E - E[best], n_blocks, dim=1)
+    means = torch.stack([b.mean(1) for b in blocks], 1)  # (n_grid, n_blocks)
+    se = means.std(1) / math.sqrt(n_blocks)
+    within = [i for i in range(len(folds.grid)) if float(scores[i] - scores[best]) <= float(se[i])]
+    return scores, se, best, max(within)
 
 
 def _widths(model, coulomb_grid) -> list:

@@ -1,4 +1,5 @@
-"""Rigid-body models from URDF/MJCF, the batched dynamics regressor and `InverseDynamics`."""
+"""Rigid-body models from URDF/MJCF: forward kinematics, the batched dynamics regressor and
+`InverseDynamics`."""
 
 from ._inverse_dynamics import InverseDynamics as InverseDynamics
 from ._model import BodyInertial as BodyInertial

@@ -1,12 +1,15 @@
 """Reading an MJCF into the `KinematicTree`: MuJoCo compiles it, pytorch-kinematics orders it.
 
 The numbers come from MuJoCo's compiled ``MjModel`` (``body_pos``/``body_quat``,
-``jnt_pos``/``jnt_axis``, ``body_mass``/``body_ipos``/``body_iquat``/``body_inertia``), the joint
+``jnt_pos``/``jnt_axis``, ``body_mass``/``body_ipos``/``body_iquat``/``body_inertia``, and
+``site_pos``/``site_quat`` for the named sites, which forward kinematics can place), the joint
 order from pytorch-kinematics' chain; see `torchjfa.dynamics._tree` for why both, and for the
 URDF side. Use `RigidBodyModel.from_mjcf` rather than this module.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -32,7 +35,33 @@ def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree,
     if gravity is None:
         gravity = np.array(model.opt.gravity, dtype=np.float64)
     chain = _pk_chain_from_mjcf(text, model)
-    return lump(_frames(model, chain), chain, gravity), chain, model
+    frames, bodies = _frames(model, chain)
+    return _with_sites(lump(frames, chain, gravity), model, bodies), chain, model
+
+
+def _with_sites(tree: KinematicTree, model, bodies: list[int]) -> KinematicTree:
+    """The tree with each named site as a frame, carried by its body's owner.
+
+    A site named like a body (MuJoCo names them apart) is left out: the body keeps the name.
+    """
+    names, owner = list(tree.frame_names), list(tree.frame_owner)
+    rots, poss = list(tree.frame_rot), list(tree.frame_pos)
+    for s in range(model.nsite):
+        name = model.site(s).name
+        if not name or name in names:
+            continue
+        f = bodies.index(int(model.site_bodyid[s]))
+        names.append(name)
+        owner.append(owner[f])
+        rots.append(rots[f] @ quat_matrix(model.site_quat[s]))
+        poss.append(poss[f] + rots[f] @ np.array(model.site_pos[s], dtype=np.float64))
+    return replace(
+        tree,
+        frame_names=tuple(names),
+        frame_owner=tuple(owner),
+        frame_rot=np.stack(rots),
+        frame_pos=np.stack(poss),
+    )
 
 
 def _check_mjcf(model) -> None:
@@ -72,11 +101,13 @@ def _check_mjcf(model) -> None:
         )
 
 
-def _frames(model, chain) -> list[Frame]:
-    """The compiled model's bodies as `Frame` records, parents first, checked against pk's chain."""
+def _frames(model, chain) -> tuple[list[Frame], list[int]]:
+    """The compiled model's bodies as `Frame` records, parents first, checked against pk's chain,
+    and the MuJoCo body id of each."""
     import mujoco
 
     frames: list[Frame] = []
+    bodies: list[int] = []
 
     def visit(pk_frame, body: int, parent: int) -> None:
         if body > 0:
@@ -111,6 +142,7 @@ def _frames(model, chain) -> list[Frame]:
         )
         rec.inertial = inertial_np(float(model.body_mass[body]), model.body_ipos[body], inertia_c)
         frames.append(rec)
+        bodies.append(body)
         me = len(frames) - 1
         kids = [c for c in range(body + 1, model.nbody) if model.body_parentid[c] == body]
         pk_kids = pk_children(pk_frame)[: len(kids)]  # pk lists child bodies first, then sites
@@ -118,7 +150,7 @@ def _frames(model, chain) -> list[Frame]:
             visit(child_frame, child, me)
 
     visit(chain._root, 0, -1)
-    return frames
+    return frames, bodies
 
 
 def _pk_chain_from_mjcf(text: str, model):

@@ -24,6 +24,7 @@ from .._validation import as_tensor
 from ..stats import Moments
 from ._inputs import check_chunk, check_out, check_state, new_output
 from ._kernel import RegressorKernel
+from ._kinematics import FrameKinematics
 from ._mjcf import tree_from_mjcf
 from ._parameters import (
     ParameterLayout,
@@ -62,7 +63,7 @@ class BodyInertial:
     inertia: torch.Tensor
 
 
-class RigidBodyModel:
+class RigidBodyModel(FrameKinematics):
     """A fixed-base tree of rigid bodies with revolute and prismatic joints.
 
     Build it with `from_urdf` or `from_mjcf`. theta is laid out joint by joint in
@@ -70,6 +71,7 @@ class RigidBodyModel:
     ``[m, m cx, m cy, m cz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` (about the body frame origin, in the
     body frame: the URDF child link frame or the MJCF body frame, with bodies attached by fixed
     joints lumped in), then the joint's friction terms (see `ParameterLayout`).
+    `forward_kinematics` places any frame of the description (`frame_names`).
 
     Attributes:
         joint_names: the actuated joints, in pytorch-kinematics' order (depth first).

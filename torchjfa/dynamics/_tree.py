@@ -10,14 +10,17 @@ axes in float32 (about 1e-7 relative), which is too coarse to agree with MuJoCo 
 * MJCF: MuJoCo's compiled ``MjModel`` (``body_pos``/``body_quat``, ``jnt_pos``/``jnt_axis``,
   ``body_mass``/``body_ipos``/``body_iquat``/``body_inertia``), the real MJCF parser.
 
-pytorch-kinematics' own forward kinematics is not used: for MJCF joints with a non-zero ``pos``
-it rotates the body about the joint position without shifting back, which misplaces the body
-(by 2 cm on ``branched_tree``'s left arm); here the body frame is MuJoCo's and the joint axis
-passes through ``pos``. A URDF joint without ``<axis>`` gets the URDF default ``(1, 0, 0)``
-(pytorch-kinematics would use ``(0, 0, 1)``).
+pytorch-kinematics' own forward kinematics is not used (`torchjfa.dynamics._kinematics` computes
+it from this tree): for MJCF joints with a non-zero ``pos`` it rotates the body about the joint
+position without shifting back, which misplaces the body (by 2 cm on ``branched_tree``'s left
+arm); here the body frame is MuJoCo's and the joint axis passes through ``pos``. A URDF joint
+without ``<axis>`` gets the URDF default ``(1, 0, 0)`` (pytorch-kinematics would use
+``(0, 0, 1)``).
 
 Frames attached by fixed joints (URDF ``fixed``, MJCF bodies without joints) are lumped into
-the nearest ancestor moved by a joint; frames fixed to the root are dropped (they never move).
+the nearest ancestor moved by a joint; frames fixed to the root carry no parameters (they never
+move). Every frame keeps its fixed pose in the body that carries it (or in the root frame), so
+that forward kinematics can still place it.
 
 A URDF's structure is checked first (`torchjfa.dynamics._urdf`: one tree, defined links, no
 loops, no mimic joints) and pytorch-kinematics builds its chain from a minimal, quiet copy;
@@ -68,6 +71,12 @@ class KinematicTree:
         gravity: ``(3,)`` m/s^2 in the root frame.
         fixed_inertial: per joint, ``{frame name: (10,) inertial in its own frame}`` of the lumped
             frames, for writing back.
+        frame_names: every frame of the description (URDF links; MJCF bodies, then named
+            sites), the root first, parents before children.
+        frame_owner: per frame, the joint whose body carries it, or -1 (fixed to the root).
+        frame_rot: ``(n_frames, 3, 3)`` each frame's fixed rotation in its owner's body frame
+            (in the root frame for owner -1).
+        frame_pos: ``(n_frames, 3)`` its fixed position there, m.
     """
 
     joint_names: tuple[str, ...]
@@ -82,6 +91,10 @@ class KinematicTree:
     inertial: np.ndarray
     gravity: np.ndarray
     fixed_inertial: list[dict[str, np.ndarray]] = field(default_factory=list)
+    frame_names: tuple[str, ...] = ()
+    frame_owner: tuple[int, ...] = ()
+    frame_rot: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    frame_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def ancestors(self) -> tuple[tuple[int, ...], ...]:
         """Per body i, the joints that move it: its ancestors and i itself, root first."""
@@ -373,4 +386,8 @@ def lump(frames: list[Frame], chain, gravity) -> KinematicTree:
         inertial=inertial,
         gravity=g,
         fixed_inertial=fixed_inertial,
+        frame_names=tuple(rec.name for rec in frames),
+        frame_owner=tuple(index[o] if o >= 0 else -1 for o in owner),
+        frame_rot=np.stack(rot_in_owner),
+        frame_pos=np.stack(pos_in_owner),
     )

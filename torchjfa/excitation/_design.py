@@ -46,33 +46,16 @@ import torch
 from .._progress import progress_bar
 from ..dynamics import RigidBodyModel
 from ..sim import SinusoidTrajectory, random_trajectory
-from ._fourier import FourierTrajectory, constrain_coefficients, fourier_states
-from ._information import (
-    CRITERIA,
-    base_directions,
-    criterion_value,
-    period_grid,
-    soft_condition,
-    trajectory_information,
-    weighted_information,
-)
-from ._limits import JOINT_KINDS, Limits, _Kinematics, check_limits, constraint_violations
+from ._fourier import FourierTrajectory, constrain_coefficients
+from ._information import CRITERIA, base_directions, period_grid, trajectory_information
+from ._limits import JOINT_KINDS as JOINT_KINDS
+from ._limits import Limits, _Kinematics, check_limits
+from ._problem import _EDGE as _EDGE
+from ._problem import _SAFETY as _SAFETY
+from ._problem import _condition_key, _Design, _optimise_round, _worst_violation
+from ._problem import _penalty as _penalty
 
 __all__ = ["ExcitationResult", "optimize_excitation", "random_excitation"]
-
-#: the joint limits (position, velocity, acceleration: the Fourier series alone, no regressor)
-#: are penalised on a grid this many times denser than the criterion's
-_DENSE = 10
-#: the optimiser aims this far inside each limit (fraction of it) so the fine-grid check holds:
-#: torques and workspace boxes, penalised on the coarse grid, where the excess between its
-#: points can reach a few per cent; the joint limits on the dense grid, where it is ~100x less
-#: (a smooth signal exceeds its grid maximum by at most max|f''| dt^2 / 8)
-_SAFETY = {"torque": 0.02, "workspace": 0.02} | dict.fromkeys(JOINT_KINDS, 0.005)
-#: each optimised candidate is scaled about the posture until the joint limits hold on the
-#: dense grid this far inside them (fraction of the limit; position: of the range), which
-#: covers what the signals do between its points (``max|f''| dt^2 / 8`` above the grid's
-#: maximum: ~1e-4 of the limit for 10 s, 5 harmonics and the limits of the benchmark)
-_EDGE = 1e-3
 
 
 @dataclass
@@ -102,14 +85,6 @@ class ExcitationResult:
     start_values: list = field(default_factory=list)
     shrink: float = 1.0
     seconds: float = 0.0
-
-
-def _penalty(viol: dict[str, torch.Tensor], shift: dict[str, torch.Tensor]) -> torch.Tensor:
-    """The limits' quadratic penalty: each sample's excess over its target, ``_SAFETY`` inside
-    the limit, moved further inside by the limit's ``shift`` (`_Design.update_shift`)."""
-    return sum(
-        (torch.relu(v + _SAFETY[k] + shift.get(k, 0.0)) ** 2).mean(0).sum() for k, v in viol.items()
-    )
 
 
 def _largest_feasible_scale(model, scaled, limits, rate, *, high: float = 1.0, theta=None):
@@ -220,85 +195,38 @@ def optimize_excitation(
         },  # fmt: skip
     )
     condition_p = _check_exponents(condition_p, criterion)
-    n = model.n_dof
-    q0 = _posture(limits, posture, n)
+    q0 = _posture(limits, posture, model.n_dof)
     g = generator if generator is not None else torch.Generator()
     if generator is None and seed is not None:
         g.manual_seed(int(seed))
     basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
     kin = None
     if limits.workspace:
-        kin = _Kinematics(model, [b.frame for b in limits.workspace], torch.float64, "cpu")
+        kin = _Kinematics(model, [b.frame for b in limits.workspace])
     problem = _Design(
         model, limits, basis, criterion, joint_weights, kin, period_grid(1.0 / f0, n_grid), q0, f0
     )
     # "d+condition": D-optimal starts, the best one polished at every exponent; "condition":
     # every start on soft_condition (its penalty rounds at the first exponent, then the others),
     # so its start_values are the bound at the last exponent
-    polish = condition_p if criterion == "d+condition" else ()
-    per_start = condition_p[1:] if criterion == "condition" else ()
-    problem.p = condition_p[0] if criterion == "condition" else None
-    kw = {"dtype": torch.float64}
-    w = 2 * math.pi * f0 * torch.arange(1, harmonics + 1, **kw)
-    room = torch.as_tensor(np.minimum(q0 - limits.position_low, limits.position_high - q0), **kw)
-
-    starts = []  # (key, a_raw, b_raw) per start
-    values = []
-    n_polish = min(polish_starts, n_starts) if polish else 0
-    total = n_starts * (len(rounds) + len(per_start)) + n_polish * len(polish)
+    plan = _Plan(
+        rounds=rounds,
+        per_start=condition_p[1:] if criterion == "condition" else (),
+        start_p=condition_p[0] if criterion == "condition" else None,
+        polish=condition_p if criterion == "d+condition" else (),
+        optimizer=optimizer,
+        max_iter=max_iter,
+        polish_iter=polish_iter,
+    )
+    problem.p = plan.start_p
+    room = torch.as_tensor(
+        np.minimum(q0 - limits.position_low, limits.position_high - q0), dtype=torch.float64
+    )
+    n_polish = min(polish_starts, n_starts) if plan.polish else 0
+    total = n_starts * (len(rounds) + len(plan.per_start)) + n_polish * len(plan.polish)
     with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
-        for _ in range(n_starts):
-            # a random start inside the position limits: each joint uses ~half of its room
-            a0 = torch.randn(n, harmonics, generator=g, **kw)
-            b0 = torch.randn(n, harmonics, generator=g, **kw)
-            a0, b0 = constrain_coefficients(a0, b0)
-            reach = ((a0.abs() + b0.abs()) / w).sum(-1)  # bound on |q - q0|
-            scale = (0.5 * room / reach)[:, None]
-            a_raw = (a0 * scale).requires_grad_(True)
-            b_raw = (b0 * scale).requires_grad_(True)
-            crit = math.inf
-            for rho, p in [(rho, problem.p) for rho in rounds] + [
-                (rounds[-1], p) for p in per_start
-            ]:
-                problem.p = p
-                crit = _optimise_round(problem, a_raw, b_raw, rho, optimizer, max_iter, room)
-                bar.update(1)
-                bar.set_postfix(criterion=f"{crit:.4g}")
-            problem.p = condition_p[0] if criterion == "condition" else None
-            # the penalty leaves the joint limits slightly exceeded where the criterion pulls:
-            # scale the start into them, so the starts are compared (and polished) as they run
-            problem.scale_into_joint_limits(a_raw, b_raw)
-            values.append(crit)
-            # prefer feasible starts on the coarse grid, then the criterion
-            key = (_worst_violation(problem, a_raw, b_raw) > 0, crit)
-            starts.append((key, a_raw.detach().clone(), b_raw.detach().clone()))
-        starts.sort(key=lambda s: s[0])
-        best = starts[0]
-        # "d+condition": the best n_polish D-optimal starts, each polished at every exponent;
-        # kept: the feasible one (coarse grid) of lowest exact condition number, the unpolished
-        # starts included, so the polish never returns a worse condition number than its start
-        if n_polish:
-            best = min(
-                ((_condition_key(problem, a, b), a, b) for _, a, b in starts[:n_polish]),
-                key=lambda s: s[0],
-            )
-        for _, a_start, b_start in starts[:n_polish]:
-            a_raw = a_start.clone().requires_grad_(True)
-            b_raw = b_start.clone().requires_grad_(True)
-            problem.shift = {}  # each polish moves its own targets
-            for p in polish:
-                problem.p = p
-                crit = _optimise_round(
-                    problem, a_raw, b_raw, rounds[-1], optimizer, polish_iter, room
-                )
-                problem.update_shift(a_raw, b_raw)
-                bar.update(1)
-                bar.set_postfix(condition=f"{crit:.4g}")
-            problem.scale_into_joint_limits(a_raw, b_raw)
-            key = _condition_key(problem, a_raw, b_raw)
-            if key < best[0]:
-                best = (key, a_raw.detach().clone(), b_raw.detach().clone())
-        a_raw, b_raw = best[1], best[2]
+        starts, values = _run_starts(problem, plan, n_starts, harmonics, g, room, bar)
+        a_raw, b_raw = _polish(problem, plan, starts[:n_polish], starts[0], room, bar)
         with torch.no_grad():
             a, b = constrain_coefficients(a_raw, b_raw)
     traj = FourierTrajectory(f0, q0, a.numpy(), b.numpy(), model.joint_names)
@@ -321,6 +249,99 @@ def optimize_excitation(
         shrink=shrink,
         seconds=time.perf_counter() - t0,
     )
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """The rounds of `optimize_excitation`'s optimisation.
+
+    Attributes:
+        rounds: penalty weights, one round each, for every start.
+        per_start: `soft_condition` exponents of the further rounds of every start (at the
+            last penalty weight; ``"condition"``).
+        start_p: the exponent of the starts' penalty rounds (None: the criterion itself).
+        polish: the exponents of the polish of the best starts (``"d+condition"``).
+        optimizer: ``"lbfgs"`` or ``"adam"``.
+        max_iter: iterations per round of a start.
+        polish_iter: iterations per round of the polish.
+    """
+
+    rounds: tuple[float, ...]
+    per_start: tuple[float, ...]
+    start_p: float | None
+    polish: tuple[float, ...]
+    optimizer: str
+    max_iter: int
+    polish_iter: int
+
+
+def _random_start(g: torch.Generator, n: int, harmonics: int, w, room):
+    """Raw coefficients ``(n, H)`` of a random start inside the position limits: each joint
+    uses about half of its room (``room``) about the posture; they require grad."""
+    kw = {"dtype": torch.float64}
+    a0 = torch.randn(n, harmonics, generator=g, **kw)
+    b0 = torch.randn(n, harmonics, generator=g, **kw)
+    a0, b0 = constrain_coefficients(a0, b0)
+    reach = ((a0.abs() + b0.abs()) / w).sum(-1)  # bound on |q - q0|
+    scale = (0.5 * room / reach)[:, None]
+    return (a0 * scale).requires_grad_(True), (b0 * scale).requires_grad_(True)
+
+
+def _run_starts(problem: _Design, plan: _Plan, n_starts: int, harmonics: int, g, room, bar):
+    """Optimise ``n_starts`` random starts; returns them ranked, ``[(key, a_raw, b_raw)]``
+    (feasible on the coarse grid first, then by the criterion), and each one's criterion."""
+    w = 2 * math.pi * problem.f0 * torch.arange(1, harmonics + 1, dtype=torch.float64)
+    starts, values = [], []
+    for _ in range(n_starts):
+        a_raw, b_raw = _random_start(g, problem.model.n_dof, harmonics, w, room)
+        crit = math.inf
+        steps = [(rho, problem.p) for rho in plan.rounds]
+        for rho, p in steps + [(plan.rounds[-1], p) for p in plan.per_start]:
+            problem.p = p
+            crit = _optimise_round(problem, a_raw, b_raw, rho, plan.optimizer, plan.max_iter, room)
+            bar.update(1)
+            bar.set_postfix(criterion=f"{crit:.4g}")
+        problem.p = plan.start_p
+        # the penalty leaves the joint limits slightly exceeded where the criterion pulls:
+        # scale the start into them, so the starts are compared (and polished) as they run
+        problem.scale_into_joint_limits(a_raw, b_raw)
+        values.append(crit)
+        # prefer feasible starts on the coarse grid, then the criterion
+        key = (_worst_violation(problem, a_raw, b_raw) > 0, crit)
+        starts.append((key, a_raw.detach().clone(), b_raw.detach().clone()))
+    starts.sort(key=lambda s: s[0])
+    return starts, values
+
+
+def _polish(problem: _Design, plan: _Plan, chosen: list, best, room, bar):
+    """Polish the ``chosen`` starts at every exponent of ``plan.polish``; returns the raw
+    coefficients kept.
+
+    Kept: the feasible candidate (coarse grid) of lowest exact condition number, the unpolished
+    starts included, so the polish never returns a worse condition number than its start;
+    ``best`` (the best start) when nothing is polished.
+    """
+    if chosen:
+        best = min(
+            ((_condition_key(problem, a, b), a, b) for _, a, b in chosen), key=lambda s: s[0]
+        )
+    for _, a_start, b_start in chosen:
+        a_raw = a_start.clone().requires_grad_(True)
+        b_raw = b_start.clone().requires_grad_(True)
+        problem.shift = {}  # each polish moves its own targets
+        for p in plan.polish:
+            problem.p = p
+            crit = _optimise_round(
+                problem, a_raw, b_raw, plan.rounds[-1], plan.optimizer, plan.polish_iter, room
+            )
+            problem.update_shift(a_raw, b_raw)
+            bar.update(1)
+            bar.set_postfix(condition=f"{crit:.4g}")
+        problem.scale_into_joint_limits(a_raw, b_raw)
+        key = _condition_key(problem, a_raw, b_raw)
+        if key < best[0]:
+            best = (key, a_raw.detach().clone(), b_raw.detach().clone())
+    return best[1], best[2]
 
 
 def _check_design(
@@ -371,23 +392,6 @@ def _check_exponents(condition_p, criterion: str) -> tuple[float, ...]:
     return ps
 
 
-def _condition_key(problem, a_raw, b_raw) -> tuple[bool, float]:
-    """(a limit is violated on the coarse grid, the exact log condition number there)."""
-    with torch.no_grad():
-        M, viol = problem.evaluate(a_raw, b_raw)
-        return (_worst(viol) > 0, float(criterion_value(M, "condition")))
-
-
-def _worst_violation(problem, a_raw, b_raw) -> float:
-    """The largest limit violation (fraction of the limit) on the coarse grid."""
-    with torch.no_grad():
-        return _worst(problem.evaluate(a_raw, b_raw)[1])
-
-
-def _worst(viol: dict[str, torch.Tensor]) -> float:
-    return max(float(v.max()) for v in viol.values())
-
-
 def _posture(limits: Limits, posture, n: int) -> np.ndarray:
     """``(n,)`` q0: ``posture``, or the middle of the position limits; strictly inside them."""
     lo, hi = limits.position_low, limits.position_high
@@ -400,134 +404,6 @@ def _posture(limits: Limits, posture, n: int) -> np.ndarray:
             f"the posture is outside the position limits (margin included) of {outside}"
         )
     return q0
-
-
-class _Design:
-    """The optimisation problem of `optimize_excitation` on the coarse grid ``t`` (one period).
-
-    ``states`` maps raw Fourier coefficients ``(n, H)`` to the constrained ones and the joint
-    states ``(n_grid, n)``; ``objective`` is the criterion plus ``rho`` times the limits'
-    penalty, and the criterion alone. The joint limits are evaluated on a grid `_DENSE` times
-    finer than ``t`` (the criterion, torque and workspace limits on ``t``). The criterion is
-    `soft_condition` at exponent ``p`` when ``p`` is set, else ``criterion`` (``"d"`` for
-    ``"d+condition"``).
-    """
-
-    def __init__(self, model, limits, basis, criterion, joint_weights, kin, t, q0, f0) -> None:
-        self.model, self.limits, self.basis, self.kin = model, limits, basis, kin
-        self.criterion, self.joint_weights = criterion, joint_weights
-        self.t, self.f0 = t, f0
-        self.t_dense = period_grid(1.0 / f0, _DENSE * len(t))
-        self.posture = torch.as_tensor(q0, dtype=torch.float64)
-        self.theta = model.nominal_theta
-        self.p: float | None = None
-        #: per kind of limit, ``(m,)`` how much further inside than ``_SAFETY`` the penalty aims
-        self.shift: dict[str, torch.Tensor] = {}
-
-    def states(self, a_raw, b_raw):
-        a, b = constrain_coefficients(a_raw, b_raw)
-        return a, b, fourier_states(self.t, self.posture, a, b, self.f0)
-
-    def evaluate(self, a_raw, b_raw):
-        """``(M, violations)``: the weighted information matrix and the limits' violations
-        (`constraint_violations`; torques from the same pass of the regressor as M, joint
-        limits on the dense grid)."""
-        a, b, (q, qd, qdd) = self.states(a_raw, b_raw)
-        Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
-        M = weighted_information(Y, self.basis, self.joint_weights)
-        viol = constraint_violations(
-            self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin,
-            kinds=("torque", "workspace"),
-        )  # fmt: skip
-        dense = fourier_states(self.t_dense, self.posture, a, b, self.f0)
-        viol.update(constraint_violations(self.model, self.limits, *dense, kinds=JOINT_KINDS))
-        return M, viol
-
-    def joint_usage(self, a, b) -> torch.Tensor:
-        """``(n,)`` per joint, the largest fraction of its joint limits (position: the room
-        between the posture and each end, less `_EDGE` of the range; velocity, acceleration:
-        the limit less `_EDGE` of it) that the motion of coefficients ``a``, ``b`` uses on the
-        dense grid (q - q0, qd and qdd are linear in the coefficients)."""
-        q, qd, qdd = fourier_states(self.t_dense, self.posture, a, b, self.f0)
-        lim = self.limits
-        lo, hi = (torch.as_tensor(x, dtype=q.dtype) for x in (lim.position_low, lim.position_high))
-        edge = _EDGE * (hi - lo)
-        d = q - self.posture
-        room = torch.where(d > 0, hi - edge - self.posture, self.posture - lo - edge)
-        usage = [d.abs() / room.clamp_min(torch.finfo(q.dtype).tiny)]  # posture at the edge
-        for x, bound in ((qd, lim.velocity), (qdd, lim.acceleration)):
-            bound = torch.as_tensor(bound, dtype=q.dtype)  # inf where unlimited: usage 0
-            usage.append(x.abs() / (bound * (1 - _EDGE)))
-        return torch.stack([u.amax(0) for u in usage]).amax(0)
-
-    def joint_scale(self, a_raw, b_raw) -> float:
-        """The largest s in [0, 1] for which ``s`` times the motion about the posture holds the
-        joint limits on the dense grid, `_EDGE` inside them (closed form: q - q0, qd and qdd
-        are linear in the coefficients)."""
-        with torch.no_grad():
-            used = float(self.joint_usage(*constrain_coefficients(a_raw, b_raw)).max())
-        return 1.0 if used <= 1.0 else 1.0 / used  # at rest (used 0) or inside: 1
-
-    def scale_into_joint_limits(self, a_raw, b_raw) -> None:
-        """Scale the coefficients (in place) by `joint_scale`."""
-        s = self.joint_scale(a_raw, b_raw)
-        if s < 1.0:
-            with torch.no_grad():
-                a_raw.mul_(s)
-                b_raw.mul_(s)
-
-    def objective(self, a_raw, b_raw, rho):
-        M, viol = self.evaluate(a_raw, b_raw)
-        if self.p is not None and math.isinf(self.p):
-            crit = criterion_value(M, "condition")
-        elif self.p is not None:
-            crit = soft_condition(M, self.p)
-        else:
-            crit = criterion_value(M, "d" if self.criterion == "d+condition" else self.criterion)
-        return crit + rho * _penalty(viol, self.shift), crit
-
-    def update_shift(self, a_raw, b_raw) -> None:
-        """Move each limit's target by what the motion exceeds it by (at its worst sample).
-
-        The quadratic penalty balances the criterion's pull a little outside its target (the
-        polish ended 1-2 % outside the joint limits on the head, which `joint_scale` then
-        took back from the whole motion). After each round each limit's (each column's)
-        ``shift`` grows by the worst excess over the target, or shrinks (not below 0) by the
-        worst room left, so the next round's penalty equilibrium sits at the target: the
-        adaptive targets of a method of multipliers, with one multiplier per limit.
-        """
-        with torch.no_grad():
-            _, viol = self.evaluate(a_raw, b_raw)
-            for k, v in viol.items():
-                old = self.shift.get(k, torch.zeros_like(v[0]))
-                self.shift[k] = (old + (v + _SAFETY[k]).amax(0)).clamp(min=0.0)
-
-
-def _optimise_round(problem: _Design, a_raw, b_raw, rho, optimizer, max_iter, room) -> float:
-    """One penalty round on ``a_raw``, ``b_raw`` (in place); returns the criterion at its end."""
-    if optimizer == "lbfgs":
-        opt = torch.optim.LBFGS(
-            [a_raw, b_raw], lr=1.0, max_iter=max_iter, line_search_fn="strong_wolfe"
-        )
-
-        def closure():
-            opt.zero_grad()
-            loss, _ = problem.objective(a_raw, b_raw, rho)
-            if torch.isfinite(loss):
-                loss.backward()
-            return loss
-
-        opt.step(closure)
-    else:
-        opt = torch.optim.Adam([a_raw, b_raw], lr=0.02 * float(room.mean()))
-        for _ in range(max_iter):
-            opt.zero_grad()
-            loss, _ = problem.objective(a_raw, b_raw, rho)
-            loss.backward()
-            opt.step()
-    with torch.no_grad():
-        _, c = problem.objective(a_raw, b_raw, rho)
-    return float(c)
 
 
 def random_excitation(

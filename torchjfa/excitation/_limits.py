@@ -3,7 +3,9 @@
 `limits_from_model` reads position, velocity and effort limits from the robot description
 (URDF ``<limit lower upper velocity effort>``, MJCF joint ``range``; an absent limit is
 infinite, a joint without a position range gets ``(-pi, pi)``), shrinks the position range by
-a margin and lets the user override every limit. `constraint_violations` gives, per sample,
+a margin and lets the user override every limit (joint limits are read through the
+pytorch-kinematics chain, `RigidBodyModel.chain`; frame positions for workspace boxes come from
+`RigidBodyModel.forward_kinematics`). `constraint_violations` gives, per sample,
 how far each limit is exceeded (normalised, > 0 means violated: the optimiser's penalty), and
 `check_limits` evaluates a trajectory on a grid finer than its output rate and raises a
 ``ValueError`` listing every violated limit.
@@ -11,7 +13,6 @@ how far each limit is exceeded (normalised, > 0 means violated: the optimiser's 
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
@@ -19,7 +20,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .._joints import permutation
 from ..dynamics import RigidBodyModel
 
 __all__ = ["Limits", "WorkspaceBox", "limits_from_model", "constraint_violations", "check_limits"]
@@ -35,7 +35,8 @@ class WorkspaceBox:
     """An axis-aligned box, in the root frame, that a frame's origin must stay inside.
 
     Attributes:
-        frame: a link (URDF) or body (MJCF) name of the kinematic chain.
+        frame: a frame of the robot (`RigidBodyModel.frame_names`): a URDF link, an MJCF body
+            or named site, including frames fixed to a moving body (a flange, a tool link).
         low: ``(3,)`` lower corner, m.
         high: ``(3,)`` upper corner, m.
     """
@@ -180,12 +181,12 @@ def limits_from_model(
     if bad:
         raise ValueError(f"empty position range (low >= high) for joints {bad}")
     span = hi - lo
-    frames = set(model.chain.get_frame_names(exclude_fixed=False))
+    frames = model.frame_names
     for box in workspace:
         if not isinstance(box, WorkspaceBox):
             raise TypeError(f"workspace must hold WorkspaceBox es, got {type(box)}")
         if box.frame not in frames:
-            raise ValueError(f"workspace box: no frame {box.frame!r}; frames: {sorted(frames)}")
+            raise ValueError(f"workspace box: no frame {box.frame!r}; frames: {frames}")
     return Limits(
         joint_names=names,
         position_low=lo + margin * span,
@@ -198,20 +199,14 @@ def limits_from_model(
 
 
 class _Kinematics:
-    """Frame origins by pytorch-kinematics' forward kinematics, in float64, model joint order."""
+    """Frame origins by the model's forward kinematics (`RigidBodyModel.forward_kinematics`)."""
 
-    def __init__(self, model: RigidBodyModel, frames: Sequence[str], dtype, device) -> None:
-        self.chain = copy.deepcopy(model.chain).to(dtype=dtype, device=device)
-        order = self.chain.get_joint_parameter_names()
-        self.perm = permutation(
-            model.joint_names, order, have_name="the model", want_name="the kinematic chain"
-        )
-        self.index = self.chain.get_frame_indices(*frames)
+    def __init__(self, model: RigidBodyModel, frames: Sequence[str]) -> None:
+        self.model, self.frames = model, tuple(frames)
 
     def origins(self, q: torch.Tensor) -> torch.Tensor:
-        """``(n, n_frames, 3)`` origins for ``q (n, n_dof)``."""
-        T = self.chain.forward_kinematics_tensor(q[:, self.perm])  # (F, n, 4, 4)
-        return T[self.index, :, :3, 3].transpose(0, 1)
+        """``(n, n_frames, 3)`` origins, m, for ``q (n, n_dof)``, in q's dtype and device."""
+        return self.model.forward_kinematics(q, self.frames)[..., :3, 3]
 
 
 def constraint_violations(
@@ -269,12 +264,13 @@ def constraint_violations(
         out["torque"] = tau[:, idx].abs() / torch.as_tensor(limits.torque[use], **kw) - 1.0
     if "workspace" in kinds and limits.workspace:
         if kinematics is None:
-            kinematics = _Kinematics(model, [b.frame for b in limits.workspace], q.dtype, q.device)
+            kinematics = _Kinematics(model, [b.frame for b in limits.workspace])
         p = kinematics.origins(q)  # (n, n_boxes, 3)
         blo = torch.as_tensor(np.array([b.low for b in limits.workspace]), **kw)
         bhi = torch.as_tensor(np.array([b.high for b in limits.workspace]), **kw)
         size = bhi - blo
-        out["workspace"] = torch.cat([(p - bhi) / size, (blo - p) / size], -1).flatten(1)
+        # columns: every box's excess above its high corner (x, y, z), then below its low one
+        out["workspace"] = torch.cat([(p - bhi) / size, (blo - p) / size], 1).flatten(1)
     return out
 
 
