@@ -19,7 +19,7 @@ viscous damping: what the identified model can represent, so the comparison meas
 excitation); the Panda arm (no MuJoCo model ships with it) moves exactly along the trajectory
 with torques ``Y theta_true`` (theta_true: the URDF's inertials, viscous friction 0.5 N m s/rad)
 and gets the same sensor noise and the same differentiation as `generate_log`. OLS
-in the identifiable directions (the moments from `torchjfa.pipeline.identify`, then
+in the identifiable directions (the moments from `torchjfa.identification.stream_moments`, then
 ``theta_hat = V (V^T X^T X V)^-1 V^T X^T y``) identifies each log. Printed per robot (medians over the
 seeds, and their ratios random / optimised):
 
@@ -44,7 +44,6 @@ import torch
 import torchjfa
 from torchjfa.data import differentiate
 from torchjfa.dynamics import RigidBodyModel
-from torchjfa.estimators import OLS
 from torchjfa.excitation import (
     CRITERIA,
     limits_from_model,
@@ -52,7 +51,7 @@ from torchjfa.excitation import (
     random_excitation,
     trajectory_information,
 )
-from torchjfa.pipeline import identify
+from torchjfa.identification import stream_moments
 from torchjfa.sim import (
     DEFAULT_RATES,
     SensorNoise,
@@ -195,7 +194,7 @@ def run(
                     periods * int(round(duration * base_frequency)),
                     seed,
                 )  # noqa: E501
-                m = identify(model, log, estimator=OLS(fit_intercept=False), project=False).moments
+                m = stream_moments(model, log)
                 # least squares in the identifiable directions: theta_hat = V (V'X'XV)^-1 V'X'y
                 theta_hat = V @ torch.linalg.solve(V.T @ m.xtx @ V, V.T @ m.xty)
                 err = float((V.T @ (theta_hat - theta)).norm() / (V.T @ theta).norm())

@@ -19,8 +19,8 @@ import csv
 import json
 from pathlib import Path
 
-from torchjfa.experiments import fig2
-from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
+from experiments import fig2
+from experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 
 
 def format_table(summary: list[dict]) -> str:

@@ -19,8 +19,9 @@ import json
 import time
 from pathlib import Path
 
-from torchjfa.experiments import robots as exp
-from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
+from experiments import robots as exp
+from experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
+
 from torchjfa.identification import joint_terms
 
 NUMBERS = {"head": "I", "arm": "II"}  # the paper's table numbers

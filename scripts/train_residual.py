@@ -9,7 +9,7 @@ Steps: simulate a training and a held-out test log of the 7-DoF head with its un
 on (armature, dry friction, joint stiffness), each on its own random excitation (a long period,
 so the training log does not repeat itself). Then, for each training size n, on the first n
 training samples only: identify the rigid-body parameters (per-joint weighted least squares,
-`torchjfa.pipeline.residual_joint_weights`, then the projection onto physically consistent
+`torchjfa.identification.residual_joint_weights`, then the projection onto physically consistent
 parameters), save them with `torchjfa.io.save_identified`, and train with Lightning an MLP on
 (q, qd, qdd) alone and the identified model plus a residual (theta frozen): the joint-local
 `JointResidual` and, with ``--residuals joint,mlp``, a whole-state MLP residual too. Report the
@@ -34,16 +34,32 @@ from pathlib import Path
 
 import lightning as L
 import torch
+from experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
 from torch.utils.data import DataLoader, RandomSampler
 
 import torchjfa.io
 from torchjfa.data import coverage
 from torchjfa.dynamics import RigidBodyModel
-from torchjfa.estimators import OLS
-from torchjfa.experiments.seeds import for_each_seed, parse_seeds, seeds_help, summary_lines
+from torchjfa.identification import (
+    NoiseChoice,
+    Options,
+    fit,
+    make_consistent,
+    residual_joint_weights,
+)
 from torchjfa.learning import ResidualDynamicsModule, StateTorqueDataset, log_tensors, nmse
-from torchjfa.pipeline import identify, residual_joint_weights
 from torchjfa.sim import generate_log, load_robot, model_path, random_trajectory
+
+#: the identification of the rigid-body parameters: least squares on the weighted equations
+#: (the weights given), the virtual parametrisation, no description prior (in simulation the
+#: description is the truth), no jackknife, no bias correction
+IDENTIFY = Options(
+    weighting="none",
+    jackknife=0,
+    bias_correction=0,
+    parametrization="virtual",
+    description_prior=None,
+)
 
 QUIET = (
     r".*does not have many workers.*",
@@ -151,7 +167,7 @@ def run(
         t1 = time.perf_counter()
         part = {"q": q[:n], "qd": qd[:n], "qdd": qdd[:n], "tau": tau[:n]}
         weights = residual_joint_weights(model, part)
-        result = identify(model, part, estimator=OLS(fit_intercept=False), joint_weights=weights)
+        result = make_consistent(fit(model, part, NoiseChoice.given(weights), IDENTIFY), IDENTIFY)
         t_id += time.perf_counter() - t1
         id_path = out / f"{robot}_identified_{n}.npz"
         torchjfa.io.save_identified(

@@ -35,7 +35,7 @@ def _verdicts(md: str) -> tuple[str, str]:
 def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
     head_csv, tmp_path, capsys, monkeypatch
 ):
-    import torchjfa.identification._stages as stages
+    import torchjfa.identification._prepare as stages
 
     seen = []
     choose = stages.choose_cutoff
@@ -92,7 +92,7 @@ def test_a_log_too_short_to_choose_falls_back_with_a_warning(head_csv, tmp_path,
     # 5 s: the training part (4 s) is shorter than the 5 s that 3 blocks and the 1 s reach of
     # the 2 Hz filter need
     code, _, err = _identify(
-        capsys, "head", head_csv, "--out", tmp_path / "s", "--smoke", "--smoke-seconds", "5",
+        capsys, "head", head_csv, "--out", tmp_path / "s", "--max-seconds", "5",
         "--quiet", "--jackknife", "0", "--no-plots",
     )  # fmt: skip
     assert code == 0, err

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+from _flow import fit_logs
 
 from torchjfa.distributed import (
     all_reduce_moments,
@@ -24,13 +25,13 @@ from torchjfa.distributed import (
 )
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA
-from torchjfa.pipeline import identify, stream_moments
+from torchjfa.identification import stream_moments
 from torchjfa.sim import generate_log, model_path
 from torchjfa.stats import Moments
 
 FIELDS = ("n", "sum_x", "sum_y", "xtx", "xty", "yty")
 LENGTHS = (300, 240)  # the two ranks' shares (270 samples each) cross the file boundary
-BJFA = {"fit_intercept": False, "accelerate": False, "max_iter": 100}
+BJFA = {"fit_intercept": False, "method": "em", "max_iter": 100}
 DEADLINE_S = 240.0
 
 
@@ -111,10 +112,10 @@ def _worker(rank: int, world_size: int, port: int, paths: list[str], out_dir: st
         moments = stream_moments(model, paths, chunk_size=200, distributed=True)
         n_read = sum(seen)
         folds = stream_moments(model, paths, n_folds=3, distributed=True)
-        ols = identify(
+        ols = fit_logs(
             model, paths, estimator=OLS(fit_intercept=False), project=False, distributed=True
         )
-        bjfa = identify(
+        bjfa = fit_logs(
             model, paths, estimator=BayesianJFA(**BJFA), project=False, distributed=True
         )
     torch.save(

@@ -75,6 +75,8 @@ def test_the_command_the_call_and_the_stages_give_one_report(head_csv, tmp_path,
     data = ident.prepare_data(model, raw, options)
     noise = ident.choose_noise(model, data, options)
     result = ident.fit(model, data, noise, options)
+    result = ident.correct_bias(result, data, noise, options)
+    result = ident.make_consistent(result, options)
     report = ident.validate(result, data, noise, {"warnings": data.warnings + noise.warnings})
     report.write(tmp_path / "stages", plots=False)
     cli = _report(tmp_path / "cli")

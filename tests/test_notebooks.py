@@ -10,12 +10,15 @@ nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
 
 NOTEBOOKS = sorted((Path(__file__).parents[1] / "notebooks").glob("*.ipynb"))
+SCRIPTS = Path(__file__).parents[1] / "scripts"  # the paper's experiments, for two notebooks
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs_in_smoke_mode(path, tmp_path, monkeypatch):
     monkeypatch.setenv("SMOKE_TEST", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    path_now = os.environ.get("PYTHONPATH")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(SCRIPTS), path_now])))
     monkeypatch.chdir(tmp_path)
     nb = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(

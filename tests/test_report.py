@@ -6,12 +6,12 @@ import matplotlib
 import numpy as np
 import pytest
 import torch
+from _flow import fit_logs
 from matplotlib.collections import PathCollection
 
 from torchjfa.data import JointLog
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.estimators import BayesianJFA
-from torchjfa.pipeline import identify
 from torchjfa.report import make_report, torque_errors
 from torchjfa.sim import generate_log, model_path
 
@@ -35,7 +35,7 @@ def report():
     )
     train, valid = log.split(0.25)
     est = BayesianJFA(fit_intercept=False, max_iter=2000)
-    result = identify(model, train, estimator=est, jackknife=3)
+    result = fit_logs(model, train, estimator=est, jackknife=3)
     return make_report(result, valid.reorder(tuple(reversed(model.joint_names))))
 
 
@@ -339,14 +339,14 @@ def test_training_rms_says_when_it_is_of_the_weighted_equations():
         t=sim.t, q=sim.q, qd=sim.qd, qdd=sim.qdd, tau=sim.tau, joint_names=sim.joint_names
     )
     train, valid = log.split(0.25)
-    plain = identify(model, train, estimator=OLS(fit_intercept=False))
+    plain = fit_logs(model, train, estimator=OLS(fit_intercept=False))
     md = make_report(plain, valid).markdown()
     t = train.reorder(model.joint_names)
     res = t.tau - model.regressor(t.q, t.qd, t.qdd) @ plain.theta
     by_hand = float(res.pow(2).mean().sqrt())
     assert f"- training RMS torque error: {by_hand:.4g} N m" in md
     weights = torch.linspace(0.5, 2.0, model.n_dof, dtype=torch.float64)
-    weighted = identify(model, train, estimator=OLS(fit_intercept=False), joint_weights=weights)
+    weighted = fit_logs(model, train, estimator=OLS(fit_intercept=False), joint_weights=weights)
     md = make_report(weighted, valid).markdown()
     assert "- training RMS of the weighted equations" in md
     assert "training RMS torque error" not in md

@@ -1,12 +1,11 @@
-"""`torchjfa.experiments.seeds`: the headline scripts' --seeds parsing and summaries."""
+"""`experiments.seeds`: the headline scripts' --seeds parsing and summaries."""
 
 from __future__ import annotations
 
 import math
 
 import pytest
-
-from torchjfa.experiments import seeds
+from experiments import seeds
 
 
 def test_parse_seeds():

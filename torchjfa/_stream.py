@@ -4,8 +4,8 @@
 straight from the zip archive, in-memory arrays sliced), forms the regressor of each chunk and
 accumulates `Moments` (of the whole, of contiguous folds, or per joint), split between the
 processes of ``torch.distributed`` when asked; `residual_joint_weights` uses it for the per-joint
-weights of weighted least squares. Both are re-exported by `torchjfa.pipeline`, the public place
-to import them from; see its docstring for the memory bound.
+weights of weighted least squares. Both are re-exported by `torchjfa.identification`, the
+public place to import them from; its `fit` stage's docstring gives the memory bound.
 """
 
 from __future__ import annotations

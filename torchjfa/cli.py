@@ -4,8 +4,9 @@
     torchjfa identify head log.csv --estimator bayes-jfa --friction viscous,coulomb --out result/
     torchjfa evaluate result/model.npz --robot head
 
-A thin shell over `torchjfa.data` (read and prepare the log), `torchjfa.identify` (moments,
-estimator, projection) and `torchjfa.report` (held-out errors, tables, figures). Bad input
+A thin shell over `torchjfa.identify` (read and prepare the log, moments, estimator,
+projection, report), `torchjfa.sim` (simulate, evaluate: these need MuJoCo) and
+`torchjfa.excitation` (excite). Bad input
 (a missing column, an unknown joint, NaN rows, time going backwards, too few samples, a robot
 file that does not parse) ends with one line on stderr and exit status 2, not a traceback;
 ``--debug`` shows the traceback. The ``identify`` sub-command (its parser and options) is in
@@ -25,13 +26,13 @@ from ._cli_identify import add_identify
 from ._cli_identify import identify_options as identify_options
 from .estimators import available as _estimators
 from .identification._options import IdentificationError
-from .sim import ROBOTS
+from .robots import SIMULATED
 
 __all__ = ["main", "ESTIMATORS"]
 
 ESTIMATORS = _estimators()  # the library's; a registered one is taken by torchjfa.identify
 
-_SIM_ROBOTS = tuple(ROBOTS)  # the simulated robots
+_SIM_ROBOTS = tuple(SIMULATED)  # the simulated robots (MuJoCo is imported only to simulate)
 
 
 #: bad input from the user: printed as one line, exit status 2 (the flow's own error)
@@ -72,7 +73,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 # ------------------------------------------------------------------------------ helpers
-def load_model(robot: str, friction: tuple[str, ...]):
+def load_model(robot: str, friction: tuple[str, ...] | None = None):
     """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name
     (`torchjfa.identification.load_model`)."""
     from .identification import load_model as load
@@ -136,7 +137,6 @@ def cmd_excite(args) -> int:
 
 # ------------------------------------------------------------------------------ evaluate
 def cmd_evaluate(args) -> int:
-    from .experiments.robots import evaluate_control
     from .io import read_identified
     from .report import predicted_torques, torque_errors
     from .sim import generate_log, random_trajectory
@@ -168,7 +168,7 @@ def cmd_evaluate(args) -> int:
     print(f"{'mean':<16} {float(nmse.mean()):>10.4g} {float(rms.pow(2).mean().sqrt()):>10.4g}")
     out = {"nmse": nmse.tolist(), "rms": rms.tolist()}
     if not args.no_control:
-        from .sim import load_robot
+        from .sim import evaluate_control, load_robot
 
         traj = random_trajectory(load_robot(args.robot), seed=args.seed + 1)
         res = evaluate_control(

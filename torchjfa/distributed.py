@@ -9,17 +9,18 @@ data size. Nothing here is home-made communication: the processes are started by
 by Lightning (``Fabric(strategy="ddp")`` or a DDP ``Trainer``) or by
 ``torch.multiprocessing.spawn``, and talk through ``torch.distributed`` (``"gloo"`` on CPU).
 
-`torchjfa.pipeline.identify` with ``distributed=True`` does all of this; use this module
-directly to share out other work, or to set up a process group from ``torchrun``'s
+`torchjfa.identification.fit` with ``Compute(distributed=True)`` does all of this; use this
+module directly to share out other work, or to set up a process group from ``torchrun``'s
 environment (`process_group`).
 
 Example (``torchrun --nproc_per_node 4 identify_logs.py``)::
 
     from torchjfa.distributed import process_group
-    from torchjfa.pipeline import identify
+    from torchjfa.identification import Compute, Options, fit
 
     with process_group("gloo"):
-        result = identify(model, log_paths, distributed=True)
+        options = Options(compute=Compute(distributed=True))
+        result = fit(model, log_paths, options=options)
 """
 
 from __future__ import annotations

@@ -39,10 +39,10 @@ from ._report_markdown import (
     undetermined,
     verdict,
 )
+from ._result import IdentificationResult
 from .data import JointLog
 from .metrics import nmse, rms
 from .physical import BaseParameters, ConsistencyReport, base_parameters, check
-from .pipeline import IdentificationResult
 
 __all__ = [
     "TorqueFit",

@@ -4,6 +4,7 @@ estimators, and a third-party estimator registered by name gets fold moments fro
 
 import pytest
 import torch
+from _flow import fit_logs
 from _robots import TWO_LINK
 
 from torchjfa import Moments, cli, estimators
@@ -21,7 +22,7 @@ from torchjfa.estimators import (
     _registry,
     jackknife,
 )
-from torchjfa.pipeline import identify, stream_moments
+from torchjfa.identification import stream_moments
 
 
 @pytest.fixture
@@ -66,7 +67,7 @@ def test_make_builds_what_the_command_line_builds(name):
         ("pls", {"n_components": 2, "fit_intercept": False}, PLS),
         ("stepwise", {"p_enter": 0.01}, Stepwise),
         ("tls", {"fit_intercept": False}, TLS),
-        ("bayes-jfa", {"a0": 2.0, "accelerate": False}, BayesianJFA),
+        ("bayes-jfa", {"a0": 2.0, "method": "em"}, BayesianJFA),
         ("jfa", {"tol": 1e-9}, JFA),
     ],
 )
@@ -128,7 +129,7 @@ def test_registered_estimator_gets_fold_moments_through_identify(registry):
     assert estimators.register("fold-ols", FoldAveragedOLS) is FoldAveragedOLS
     assert estimators.available()[-1] == "fold-ols"
     model, log = _two_link_log()
-    result = identify(model, log, estimator=estimators.make("fold-ols", cv=3), project=False)
+    result = fit_logs(model, log, estimator=estimators.make("fold-ols", cv=3), project=False)
     seen = result.estimator.seen_folds_
     assert len(seen) == 3  # cv folds, not one Moments
     # contiguous blocks of 200 samples x 2 joints, cut by hand from the regressor

@@ -3,8 +3,7 @@ import json
 from pathlib import Path
 
 import pytest
-
-from torchjfa.experiments import fig2
+from experiments import fig2
 
 SCRIPT = Path(__file__).parents[2] / "scripts" / "reproduce_fig2.py"
 

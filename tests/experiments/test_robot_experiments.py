@@ -5,9 +5,9 @@ import math
 import matplotlib
 import pytest
 import torch
+from experiments import robots
 
 from torchjfa.dynamics import RigidBodyModel
-from torchjfa.experiments import robots
 from torchjfa.physical import check
 from torchjfa.sim import SensorNoise, generate_log, load_robot, model_path, random_trajectory
 
@@ -155,11 +155,11 @@ def test_bad_arguments_raise():
         robots.block_moments(model, x, x, x, x, n_blocks=1)
     folds = robots.block_moments(model, x + 0.1, x, x, x + 1.0, n_blocks=2)
     with pytest.raises(ValueError, match="unknown method"):
-        robots.identify(model, folds, methods=("ols",))
+        robots.fit_methods(model, folds, methods=("ols",))
     with pytest.raises(ValueError, match="input_noise"):
-        robots.identify(model, folds, methods=("bjfa-noise",))
+        robots.fit_methods(model, folds, methods=("bjfa-noise",))
     with pytest.raises(TypeError, match="folds"):
-        robots.identify(model, folds[:1])
+        robots.fit_methods(model, folds[:1])
 
 
 def test_weighted_run_uses_weighted_fold_moments(tmp_path, monkeypatch):

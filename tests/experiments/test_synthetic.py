@@ -1,7 +1,6 @@
 import pytest
 import torch
-
-from torchjfa.experiments.synthetic import make_problem
+from experiments.synthetic import make_problem
 
 
 def test_shapes_and_reproducibility():

@@ -1,5 +1,5 @@
-"""The bias correction of the flow (`simex_bias`, `torchjfa.pipeline.correct_bias`): what it
-subtracts, where, that it moves the estimate toward the truth, and what happens without it."""
+"""The bias correction stage (`simex_bias`, `correct_bias`): what it subtracts, where, that it
+moves the estimate toward the truth, and what happens without it."""
 
 import warnings
 
@@ -14,10 +14,14 @@ from torchjfa.identification import (
     AUTO_BIAS_REFITS,
     IdentificationError,
     IdentificationWarning,
+    NoiseChoice,
     Options,
-    _bootstrap,
+    _bias,
+    correct_bias,
+    fit,
+    make_consistent,
 )
-from torchjfa.pipeline import correct_bias, estimate, identify, project_estimate, stream_moments
+from torchjfa.physical import project
 from torchjfa.sim import generate_log, model_path, true_parameters
 
 
@@ -64,27 +68,28 @@ def test_the_correction_moves_the_estimate_toward_the_truth(head, seed):
 def test_correct_bias_shifts_the_estimate_and_the_jackknife_and_the_projection_follows(head):
     model, _ = head
     log = generate_log("head", n_samples=1500, seed=2)
-    folds = stream_moments(model, log, n_folds=4)
-    moments = sum(folds[1:], folds[0].copy())
-    fit = estimate(OLS(fit_intercept=False), moments, folds, jackknife=True)
+    options = Options(
+        weighting="none", jackknife=4, bias_correction=0, parametrization="virtual",
+        description_prior=None,
+    )  # fmt: skip
+    fitted = fit(model, log, NoiseChoice.given(), options)
     bias = torch.linspace(-0.01, 0.01, model.n_params, dtype=torch.float64)
-    shifted = correct_bias(fit, bias)
-    torch.testing.assert_close(shifted.theta_hat, fit.theta_hat - bias, rtol=0, atol=0)
-    torch.testing.assert_close(shifted.theta_hat_jackknife, fit.theta_hat_jackknife - bias)
-    torch.testing.assert_close(shifted.bias, bias)
-    # identify(bias=...) projects the corrected estimate
-    # (the same four blocks, so the same moments to the bit: the projection of an estimate
-    # the data leave undetermined in places is not smooth in rounding)
-    result = identify(
-        model, log, estimator=OLS(fit_intercept=False), jackknife=4, bias=lambda _: bias
-    )
-    torch.testing.assert_close(result.theta_hat, fit.theta_hat - bias)
-    expected = project_estimate(model, shifted, moments).theta
+    shifted = correct_bias(fitted, bias=bias)
+    torch.testing.assert_close(shifted.theta_hat, fitted.theta_hat - bias, rtol=0, atol=0)
+    torch.testing.assert_close(shifted.theta_hat_jackknife, fitted.theta_hat_jackknife - bias)
+    torch.testing.assert_close(shifted.theta_hat_bias, bias)
+    # the projection stage projects the corrected estimate
+    result = make_consistent(shifted, options)
+    expected = project(
+        fitted.theta_hat - bias, layout=model, moments=fitted.moments, parametrization="virtual"
+    ).theta
     torch.testing.assert_close(result.theta, expected, rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError, match="finite values"):
-        correct_bias(fit, torch.full((3,), 1.0))
+        correct_bias(fitted, bias=torch.full((3,), 1.0))
     with pytest.raises(ValueError, match="finite values"):
-        correct_bias(fit, torch.full((model.n_params,), float("nan")))
+        correct_bias(fitted, bias=torch.full((model.n_params,), float("nan")))
+    with pytest.raises(ValueError, match="before make_consistent"):
+        correct_bias(result, bias=bias)
 
 
 def test_without_a_readable_noise_the_estimate_stays_uncorrected_with_a_warning(head, monkeypatch):
@@ -94,7 +99,7 @@ def test_without_a_readable_noise_the_estimate_stays_uncorrected_with_a_warning(
     def unreadable(*args, **kwargs):
         raise LogError("the spectrum of tau does not flatten below the Nyquist frequency")
 
-    monkeypatch.setattr(_bootstrap, "signal_bootstrap", unreadable)
+    monkeypatch.setattr(_bias, "signal_bootstrap", unreadable)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", IdentificationWarning)
         ident = torchjfa.identify(model, log, Options(project=False, cutoff=15.0))

@@ -10,7 +10,7 @@ columns); `coverage` says where another log's motion goes beyond the identificat
 periods; `signal_noise` estimates the sensors' noise from a raw log's spectrum and
 `propagated_noise` pushes it through the preparation and the regressor to the same noise for
 any log. `NpzArchive` and `NpzLog` are the one ``.npz`` reader (member by member, row range by
-row range); `log_sources` streams logs to `torchjfa.pipeline.stream_moments` through it.
+row range); `log_sources` streams logs to `torchjfa.identification.stream_moments` through it.
 """
 
 from ._checks import LogProblem as LogProblem

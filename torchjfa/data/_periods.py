@@ -75,8 +75,8 @@ def regressor_noise(
         max_periods: use at most this many whole periods (default all).
         progress: show a progress bar over the periods.
         joint_weights: ``(n_dof,)`` weights of each joint's equations (model order) when the
-            regression is weighted (`torchjfa.pipeline.identify`'s ``joint_weights``): the
-            input noise is then that of the weighted rows.
+            regression is weighted (``NoiseChoice.joint_weights`` of
+            `torchjfa.identification`): the input noise is then that of the weighted rows.
 
     Returns:
         A `PeriodNoise`; the unbiased variance across periods (divisor ``n_periods - 1``).

@@ -5,7 +5,7 @@ memory stays that of a few ranges whatever the file's length), a `JointLog` (a
 `torchjfa.sim.SimulatedLog` included), a mapping of arrays, or any object with ``q``, ``qd``,
 ``qdd`` and ``tau`` ``(n_samples, n_dof)`` arrays (memory-mapped ``.npy`` arrays stay on disk:
 only the ranges read are copied). `log_sources` opens one or several and matches their columns
-to a model's joints by name; `torchjfa.pipeline.stream_moments` reads them.
+to a model's joints by name; `torchjfa.identification.stream_moments` reads them.
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ class LinearEstimator:
     `Moments` (no CV possible, the estimator must then be given its hyper-parameter) or a
     sequence of `Moments` used as folds.
 
-    The protocol that the library's flow (`torchjfa.pipeline.identify`, `jackknife`) relies on,
+    The protocol that the library's flow (`torchjfa.identification.fit`, `jackknife`) relies on,
     and that a third-party estimator implements (registered with
     `torchjfa.estimators.register`):
 

@@ -1,42 +1,55 @@
-"""torchjfa.identification: a robot identified from its raw log, as one call or stage by stage.
+"""torchjfa.identification: a robot identified from its logs, as one call or stage by stage.
 
 `identify` (also `torchjfa.identify`) runs the whole flow with `Options`, whose defaults are
-chosen for real robots; the ``torchjfa identify`` command is that call. The stages, in order,
-each taking the previous one's output:
+chosen for real robots; the ``torchjfa identify`` command is that call, its flags generated
+from `Options`' fields. The stages, in order, each taking the previous one's output:
 
 1. `load_model`: the `RigidBodyModel` from a URDF / MJCF file or a robot's name;
 2. `read`: the raw log as a `torchjfa.data.JointLog`, checked (`RawLog`);
 3. `prepare_data`: cut-off, filter, derivatives, the held-out part (`PreparedData`);
 4. `choose_noise`: joint weights and the regressor's input noise (`NoiseChoice`);
-5. `fit`: moments, estimator, bias correction (`simex_bias`), projection
-   (`torchjfa.pipeline.identify`;
-   `torchjfa.pipeline.IdentificationResult`);
-6. `validate`: the report on the held-out data (`torchjfa.report.IdentificationReport`).
+5. `fit`: the training data's moments, the estimator and its jackknife
+   (`IdentificationResult`); it also takes prepared logs (simulated ones, say) directly;
+6. `correct_bias`: the sensor noise's bias of the unconstrained estimate (`simex_bias`);
+7. `make_consistent`: the projection onto physically consistent parameters, with the
+   description as a prior where the data are silent;
+8. `validate`: the report on the held-out data (`torchjfa.report.IdentificationReport`).
 
-`signal_bootstrap` refits on re-drawn sensor noise for the spread of the unconstrained estimate;
-`simex_bias` takes the sensor noise's bias of the estimate from the same refits.
+`stream_moments` (the logs' `Moments`, streamed through the regressor) and
+`residual_joint_weights` are the building blocks of `fit` and `choose_noise`, for fitting
+several estimators on the same data; `signal_bootstrap` refits on re-drawn sensor noise for the
+spread of the unconstrained estimate.
 """
 
-from ._bootstrap import signal_bootstrap as signal_bootstrap
-from ._bootstrap import simex_bias as simex_bias
+from .._result import IdentificationResult as IdentificationResult
+from .._stream import residual_joint_weights as residual_joint_weights
+from .._stream import stream_moments as stream_moments
+from ._bias import correct_bias as correct_bias
+from ._bias import signal_bootstrap as signal_bootstrap
+from ._bias import simex_bias as simex_bias
+from ._consistent import make_consistent as make_consistent
+from ._fit import fit as fit
+from ._fit import make_estimator as make_estimator
 from ._identify import Identification as Identification
 from ._identify import identify as identify
+from ._noise import NoiseChoice as NoiseChoice
+from ._noise import cap_period_noise as cap_period_noise
+from ._noise import choose_noise as choose_noise
 from ._options import AUTO_BIAS_REFITS as AUTO_BIAS_REFITS
+from ._options import DEFAULT_JOINT_TERMS as DEFAULT_JOINT_TERMS
 from ._options import JOINT_TERMS as JOINT_TERMS
 from ._options import Compute as Compute
 from ._options import IdentificationError as IdentificationError
 from ._options import IdentificationWarning as IdentificationWarning
 from ._options import Options as Options
 from ._options import joint_terms as joint_terms
-from ._stages import NoiseChoice as NoiseChoice
-from ._stages import PreparedData as PreparedData
-from ._stages import RawLog as RawLog
-from ._stages import cap_period_noise as cap_period_noise
-from ._stages import choose_noise as choose_noise
-from ._stages import coverage_warnings as coverage_warnings
-from ._stages import fit as fit
-from ._stages import load_model as load_model
-from ._stages import make_estimator as make_estimator
-from ._stages import prepare_data as prepare_data
-from ._stages import read as read
-from ._stages import validate as validate
+from ._prepare import PreparedData as PreparedData
+from ._prepare import prepare_data as prepare_data
+from ._prior import PRIOR_BLOCKS as PRIOR_BLOCKS
+from ._prior import PRIOR_TOLERANCE as PRIOR_TOLERANCE
+from ._prior import PRIOR_WEIGHTS as PRIOR_WEIGHTS
+from ._read import RawLog as RawLog
+from ._read import load_model as load_model
+from ._read import read as read
+from ._validate import coverage_warnings as coverage_warnings
+from ._validate import validate as validate

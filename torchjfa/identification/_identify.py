@@ -12,21 +12,17 @@ from pathlib import Path
 
 import torch
 
+from .._result import IdentificationResult
 from ..dynamics import RigidBodyModel
-from ..pipeline import IdentificationResult
 from ..report import IdentificationReport, TorqueFit, estimator_text, verdict
+from ._bias import correct_bias
+from ._consistent import make_consistent
+from ._fit import fit
+from ._noise import NoiseChoice, choose_noise
 from ._options import IdentificationWarning, Options
-from ._stages import (
-    NoiseChoice,
-    PreparedData,
-    RawLog,
-    choose_noise,
-    fit,
-    load_model,
-    prepare_data,
-    read,
-    validate,
-)
+from ._prepare import PreparedData, prepare_data
+from ._read import RawLog, load_model, read
+from ._validate import validate
 
 __all__ = ["Identification", "identify"]
 
@@ -40,11 +36,11 @@ class Identification:
         raw: the `RawLog` as read (joints in the model's order).
         data: the `PreparedData` (training and held-out parts).
         noise: the `NoiseChoice` (joint weights, input noise).
-        result: the `torchjfa.pipeline.IdentificationResult` (theta, the unconstrained
-            estimate, spreads, moments, projection).
+        result: the `torchjfa.identification.IdentificationResult` (theta, the
+            unconstrained estimate, spreads, moments, projection).
         report: the `torchjfa.report.IdentificationReport` on the held-out data.
         options: the `Options` used.
-        seconds: wall time of the fit (moments, estimator, projection), s.
+        seconds: wall time of the fit (moments, estimator, bias correction, projection), s.
     """
 
     model: RigidBodyModel
@@ -89,7 +85,7 @@ class Identification:
 
     def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
         """The identified model as an `InverseDynamics` ``nn.Module`` (see
-        `IdentificationResult.inverse_dynamics`)."""
+        `torchjfa.identification.IdentificationResult.inverse_dynamics`)."""
         return self.result.inverse_dynamics(projected=projected, trainable=trainable)
 
     def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
@@ -122,9 +118,11 @@ def identify(
 
     `load_model` -> `read` (check the log) -> `prepare_data` (cut-off, filter, derivatives,
     held-out part) -> `choose_noise` (joint weights, input noise from repeated periods) -> `fit`
-    (moments, estimator, projection) -> `validate` (the report on the held-out data). Each stage
-    is public in `torchjfa.identification`, to run one by one (notebooks/real_robot.ipynb).
-    The ``torchjfa identify`` command is this call.
+    (moments, estimator, jackknife) -> `correct_bias` (the sensor noise's bias, SIMEX) ->
+    `make_consistent` (the projection onto physically consistent parameters) -> `validate`
+    (the report on the held-out data). Each stage is public in `torchjfa.identification`, to
+    run one by one (notebooks/real_robot.ipynb). The ``torchjfa identify`` command is this
+    call.
 
     Args:
         robot: a URDF / MJCF path, a shipped or simulated robot's name, or a `RigidBodyModel`.
@@ -152,6 +150,9 @@ def identify(
     noise = choose_noise(model, data, options)
     started = time.perf_counter()
     result = fit(model, data, noise, options)
+    result = correct_bias(result, data, noise, options)
+    if options.project:
+        result = make_consistent(result, options)
     seconds = time.perf_counter() - started
     record = {
         "robot": _name(robot),

@@ -1,216 +1,90 @@
 """How an identification runs: `Options` (every choice of the flow) and `Compute` (where and how
-the pass over the data runs)."""
+the pass over the data runs).
+
+Each field carries its command-line flag, help text, choices and argument parser in its
+metadata (`option`), so that ``torchjfa identify``'s options are generated from these
+dataclasses and cannot drift from them.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import MISSING, Field, dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
 import torch
 
 from ..dynamics import FRICTION_KINDS
+from . import _parse as parse
+from ._errors import IdentificationError, IdentificationWarning
+
+if TYPE_CHECKING:
+    from ..estimators import LinearEstimator
 
 __all__ = [
+    "AUTO_BIAS_REFITS",
     "Compute",
-    "Options",
+    "DEFAULT_JOINT_TERMS",
+    "GROUPS",
     "IdentificationError",
     "IdentificationWarning",
     "JOINT_TERMS",
+    "Options",
     "joint_terms",
+    "option",
 ]
 
 #: the joint terms `Options.friction` takes: friction, and the motor's reflected inertia
 JOINT_TERMS = FRICTION_KINDS
-
-
-class IdentificationError(ValueError):
-    """The data or the options cannot give an identification: what is wrong, and what to do.
-
-    (The command line prints it as one line and exits with status 2.)"""
-
-
-class IdentificationWarning(UserWarning):
-    """The identification ran but something in it needs the user's attention."""
-
-
+#: the joint terms of a model read from a file or a name when `Options.friction` is None
+DEFAULT_JOINT_TERMS = ("viscous", "coulomb", "offset")
 #: the bias correction's refits with ``bias_correction="auto"`` for least squares
 AUTO_BIAS_REFITS = 20
+#: the groups of options, in the order the command's help lists them: name -> title
+GROUPS = {
+    "reading": "reading the log",
+    "preparation": "filtering, differentiating and splitting",
+    "model": "the model's joint terms",
+    "estimator": "estimation",
+    "projection": "physical consistency",
+    "compute": "computation",
+}
 
 
-@dataclass(frozen=True)
-class Compute:
-    """Where and how the pass over the data runs (`torchjfa.pipeline.stream_moments`).
+def option(
+    default=MISSING,
+    *,
+    group: str,
+    help: str,
+    parse: Callable[[str], object] | None = None,
+    choices: Sequence[str] | Callable[[], Sequence[str]] | None = None,
+    flag: str | None = None,
+    metavar: str | None = None,
+    cli: bool = True,
+    default_factory=MISSING,
+) -> Field:
+    """A dataclass field of `Options` or `Compute` with its command-line metadata.
 
-    Attributes:
-        chunk_size: samples per regressor chunk; memory ``O(chunk_size * n_dof * n_params)``.
-        device: where the regressor, moments and fits are computed (None: CPU).
-        distributed: share the pass between the processes of an initialised
-            ``torch.distributed`` group; every process gets the same result.
-        group: that process group (None: the default group).
-        progress: show progress bars.
-        compiled: the regressor's path: None the C++ kernel where a compiler is found, True
-            insists on it, False the torch path (`RigidBodyModel.regressor`).
+    Args:
+        default, default_factory: as for `dataclasses.field`.
+        group: a key of `GROUPS`.
+        help: the flag's help text (the default is appended by the command).
+        parse: turns the flag's text into the field's value (raises
+            ``argparse.ArgumentTypeError`` with what was expected); default: the default's type.
+        choices: the values allowed on the command line (or a function giving them).
+        flag: the flag (default ``--`` + the name with dashes; a bool that defaults to True
+            gets ``--no-<name>``).
+        metavar: the value's name in the help.
+        cli: False for a field the command does not set (a Python object, say).
     """
-
-    chunk_size: int = 4096
-    device: torch.device | str | None = None
-    distributed: bool = False
-    group: object = None
-    progress: bool = False
-    compiled: bool | None = None
-
-    def stream(self) -> dict[str, object]:
-        """The keywords of `stream_moments` / `torchjfa.pipeline.identify` this sets."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+    if group not in GROUPS:
+        raise ValueError(f"unknown option group {group!r}; choose from {tuple(GROUPS)}")
+    meta = {"group": group, "help": help, "parse": parse, "choices": choices, "flag": flag,
+            "metavar": metavar, "cli": cli}  # fmt: skip
+    return field(default=default, default_factory=default_factory, metadata=meta)
 
 
-@dataclass(frozen=True)
-class Options:
-    """Every choice of `torchjfa.identify`, with defaults that work on a real robot's log
-    (docs/real-robot.md measures them on a Franka Panda). The command line's options are these.
-
-    Robot:
-        friction: the joint terms of the model when the robot is given by name or file,
-            from `JOINT_TERMS` (viscous, Coulomb and offset friction; ``"armature"``).
-
-    Reading (`torchjfa.data.read_log`):
-        columns: the library's column names -> the log's (``{"t": "time", ...}``), or None.
-        time_scale: seconds per unit of the log's time column (1e-9 for ns).
-        drop_nan: drop rows holding NaN instead of stopping.
-        max_seconds: use only the first this many seconds of the log (a quick check), or None.
-
-    Preparation (`torchjfa.data.prepare`):
-        cutoff: the zero-phase low-pass cut-off, Hz, or ``"auto"``
-            (`torchjfa.data.choose_cutoff` on the training part of the log).
-        coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (its column
-            ``tanh(qd / v_c)``; 0 is ``sign(qd)``), or ``"auto"``: chosen with the cut-off
-            from `torchjfa.data.COULOMB_GRID` by the same held-out prediction (at a given
-            cut-off, by that cut-off alone). Without a Coulomb term it does nothing.
-        filter: ``"butterworth"`` (order 4) or ``"savgol"``.
-        velocity: ``"auto"``, ``"measured"`` or ``"differentiate"``.
-        period: the excitation period, s, ``"auto"`` (detect) or None (none).
-        skip_start: seconds of start-up transient to drop, or ``"auto"`` (needs a period).
-        decimate: keep every k-th sample after filtering.
-        validation: the fraction held out at the end of the log (unless a validation log is
-            given), with a gap of the filter's reach between the parts.
-
-    Estimation:
-        estimator: a name of `torchjfa.estimators.available` (`torchjfa.estimators.make`: the
-            library's and any registered one) or an estimator
-            with ``fit_intercept=False``, used as it is.
-        estimator_options: keywords of the named estimator (e.g. ``{"max_iter": 20000}``).
-        weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
-            variance, `torchjfa.pipeline.residual_joint_weights`) or ``"none"``.
-        input_noise: the regressor's input noise: ``"auto"`` (from the repeated excitation
-            periods where the training data hold two or more, else ``"propagated"`` for an
-            estimator that takes an input noise and none for the others),
-            ``"periods"`` (insist on it), ``"propagated"`` (the raw log's sensor noise, from
-            its spectrum, pushed through the preparation and the regressor:
-            `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
-            it), or ``(n_params,)`` variances of the (weighted) regressor columns.
-        jackknife: blocks of the delete-one-block jackknife spread (0: none).
-        bias_correction: refits on the raw log with re-drawn sensor noise for the
-            errors-in-variables bias of the unconstrained estimate, subtracted before the
-            projection (`torchjfa.identification.simex_bias`; 0: no correction), or ``"auto"``:
-            `AUTO_BIAS_REFITS` for least squares (OLS), none for the other estimators (the
-            shrinkage and relevance pruning of Bayesian JFA, ridge, lasso... change with the
-            noise level, so the linear extrapolation does not hold for them: on the simulated
-            head, Bayesian JFA's correction was as large as the estimate; `bias_refits`).
-
-    Projection (`torchjfa.physical.project`):
-        project: project onto physically consistent parameters.
-        parametrization: ``"log-cholesky"`` (fully consistent) or ``"virtual"`` (eq. 5).
-        description_prior: ``"auto"`` (default), a weight >= 0 or None (no prior; see
-            `torchjfa.pipeline.identify`): the projection is pulled towards the description's
-            parameters where the data are silent, with a weight chosen by cross-validation
-            over the training blocks (``"auto"``). With ``project=False`` there is no
-            projection and ``"auto"`` does nothing. On the real Panda log
-            (``scripts/real_panda.py``) it kept every link mass within 0.70-1.05x of the
-            description's (three were outside [0.3x, 3x] without it), lowered the held-out
-            mean RMS by 1.5 % and raised the mean nMSE by 9 % (joints 5-7 lost, joint 2
-            gained; docs/real-robot.md). In simulation, where the description is the truth,
-            the scripts turn it off (``description_prior=None``): it would lend them the
-            answer.
-        projection_options: more keywords of `torchjfa.physical.project`.
-
-    compute: `Compute` (chunking, device, processes, progress, the regressor's path).
-    """
-
-    friction: tuple[str, ...] = ("viscous", "coulomb", "offset")
-    columns: Mapping[str, str] | None = None
-    time_scale: float = 1.0
-    drop_nan: bool = False
-    max_seconds: float | None = None
-    cutoff: float | str = "auto"
-    coulomb_velocity: float | str = "auto"
-    filter: str = "butterworth"
-    velocity: str = "auto"
-    period: float | str | None = "auto"
-    skip_start: float | str = 0.0
-    decimate: int = 1
-    validation: float = 0.2
-    estimator: object = "ols"
-    estimator_options: Mapping[str, object] = field(default_factory=dict)
-    weighting: str = "residual"
-    input_noise: object = "auto"
-    jackknife: int = 20
-    bias_correction: int | str = "auto"
-    project: bool = True
-    parametrization: str = "log-cholesky"
-    description_prior: float | str | None = "auto"
-    projection_options: Mapping[str, object] = field(default_factory=dict)
-    compute: Compute = field(default_factory=Compute)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "friction", joint_terms(self.friction))
-        _choice("filter", self.filter, ("butterworth", "savgol"))
-        _choice("velocity", self.velocity, ("auto", "measured", "differentiate"))
-        _choice("weighting", self.weighting, ("residual", "none"))
-        _choice("parametrization", self.parametrization, ("log-cholesky", "virtual"))
-        if isinstance(self.estimator, str):
-            from ..estimators import available
-
-            _choice("estimator", self.estimator, available())
-        if isinstance(self.input_noise, str):
-            _choice("input_noise", self.input_noise, ("auto", "learn", "periods", "propagated"))
-        if self.cutoff != "auto" and not 0 < _number(self.cutoff) < float("inf"):
-            raise IdentificationError(
-                f"cutoff must be 'auto' or a positive Hz, got {self.cutoff!r}"
-            )
-        if self.coulomb_velocity != "auto" and not 0 <= _number(self.coulomb_velocity) < float(
-            "inf"
-        ):
-            raise IdentificationError(
-                "coulomb_velocity must be 'auto' or a number >= 0, rad/s, got "
-                f"{self.coulomb_velocity!r}"
-            )
-        if not 0.0 < _number(self.validation) < 1.0:
-            raise IdentificationError(
-                f"validation must be a fraction in (0, 1), got {self.validation}"
-            )
-        n = self.bias_correction
-        if n != "auto" and (isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0):
-            raise IdentificationError(
-                f"bias_correction must be 'auto', 0 (off) or at least 2 refits, got {n!r}"
-            )
-        if self.description_prior not in (None, "auto") and not self.project:
-            raise IdentificationError(
-                "the description prior acts in the projection: it needs project=True"
-            )
-
-    def bias_refits(self, estimator) -> int:
-        """How many refits the bias correction makes for ``estimator`` (0: none)."""
-        if self.bias_correction != "auto":
-            return int(self.bias_correction)
-        from ..estimators import OLS
-
-        return AUTO_BIAS_REFITS if type(estimator) is OLS else 0
-
-    def replace(self, **changes) -> Options:
-        """A copy with ``changes`` (``Options`` is frozen)."""
-        return replace(self, **changes)
-
-
+# ------------------------------------------------------------------------------ parsers
 def joint_terms(value) -> tuple[str, ...]:
     """Joint terms from `JOINT_TERMS`, given as a sequence or as the command line writes them
     (``"viscous,coulomb"``; ``"none"`` or ``""`` for none), checked.
@@ -228,14 +102,370 @@ def joint_terms(value) -> tuple[str, ...]:
     return terms
 
 
-def _number(value) -> float:
-    """``value`` as a float, NaN where it is not a number (so that the range checks refuse it)."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
+def _estimators() -> tuple[str, ...]:
+    from ..estimators import available
+
+    return available()
 
 
-def _choice(name: str, value, allowed: tuple[str, ...]) -> None:
+# ------------------------------------------------------------------------------ Compute
+@dataclass(frozen=True)
+class Compute:
+    """Where and how the pass over the data runs (`torchjfa.identification.stream_moments`).
+
+    Attributes:
+        chunk_size: samples per regressor chunk; memory ``O(chunk_size * n_dof * n_params)``.
+        device: where the regressor, moments and fits are computed (None: CPU).
+        distributed: share the pass between the processes of an initialised
+            ``torch.distributed`` group; every process gets the same result.
+        group: that process group (None: the default group).
+        progress: show progress bars (the command shows them unless ``--quiet``).
+        compiled: the regressor's path: None the C++ kernel where a compiler is found, True
+            insists on it, False the torch path (`RigidBodyModel.regressor`).
+    """
+
+    chunk_size: int = option(
+        4096, group="compute", help="samples per regressor chunk (memory grows with it)"
+    )
+    device: torch.device | str | None = option(
+        None, group="compute", parse=str, help="where to compute, e.g. cuda (default: CPU)"
+    )
+    distributed: bool = option(False, group="compute", cli=False, help="")
+    group: object = option(None, group="compute", cli=False, help="")
+    progress: bool = option(False, group="compute", cli=False, help="")
+    compiled: bool | None = option(
+        None,
+        group="compute",
+        help="form the regressor with a C++ kernel generated for the robot (several times "
+        "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
+        "found, else the torch path",
+    )
+
+    def stream(self) -> dict[str, object]:
+        """The keywords of `torchjfa.identification.stream_moments` this sets."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+# ------------------------------------------------------------------------------ Options
+@dataclass(frozen=True)
+class Options:
+    """Every choice of `torchjfa.identify`, with defaults that work on real robots' logs. The
+    ``torchjfa identify`` command's options are these fields (`GROUPS`; each field's metadata
+    holds its flag and help).
+
+    Reading (`torchjfa.data.read_log`):
+        columns: the library's column names -> the log's (``{"t": "time", ...}``), or None.
+        time_scale: seconds per unit of the log's time column (1e-9 for ns).
+        drop_nan: drop rows holding NaN instead of stopping.
+        max_seconds: use only the first this many seconds of the log (a quick check), or None.
+
+    Preparation (`torchjfa.data.prepare`):
+        cutoff: the zero-phase low-pass cut-off, Hz, or ``"auto"``
+            (`torchjfa.data.choose_cutoff` on the training part of the log).
+        filter: ``"butterworth"`` (order 4) or ``"savgol"``.
+        velocity: ``"auto"``, ``"measured"`` or ``"differentiate"``.
+        period: the excitation period, s, ``"auto"`` (detect) or None (none).
+        skip_start: seconds of start-up transient to drop, or ``"auto"`` (needs a period).
+        decimate: keep every k-th sample after filtering.
+        validation: the fraction held out at the end of the log (unless a validation log is
+            given), with a gap of the filter's reach between the parts.
+
+    The model's joint terms:
+        friction: the joint terms (`JOINT_TERMS`: viscous, Coulomb and offset friction;
+            ``"armature"``, the motor's reflected inertia); None: `DEFAULT_JOINT_TERMS` for a
+            robot given by file or name, the model's own for a `RigidBodyModel` (whose terms
+            a different tuple contradicts: an error).
+        coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (its column
+            ``tanh(qd / v_c)``; 0 is ``sign(qd)``), or ``"auto"``: chosen with the cut-off
+            from `torchjfa.data.COULOMB_GRID` by the same held-out prediction.
+
+    Estimation:
+        estimator: a name of `torchjfa.estimators.available` (`torchjfa.estimators.make`: the
+            library's and any registered one) or an estimator with ``fit_intercept=False``,
+            used as it is.
+        estimator_options: keywords of the named estimator (e.g. ``{"max_iter": 20000}``);
+            an option the estimator does not take is an error.
+        weighting: ``"residual"`` (each joint's equations weighted by its inverse residual
+            variance, `torchjfa.identification.residual_joint_weights`) or ``"none"``.
+        input_noise: the regressor's input noise: ``"auto"`` (from the repeated excitation
+            periods where the training data hold two or more, else ``"propagated"`` for an
+            estimator that takes an input noise and none for the others), ``"periods"``
+            (insist on it), ``"propagated"`` (the raw log's sensor noise, from its spectrum,
+            pushed through the preparation and the regressor:
+            `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
+            it), or ``(n_params,)`` variances of the (weighted) regressor columns.
+        jackknife: blocks of the delete-one-block jackknife spread (0: none).
+        bias_correction: refits on the raw log with re-drawn sensor noise for the
+            errors-in-variables bias of the unconstrained estimate, subtracted before the
+            projection (`torchjfa.identification.correct_bias`; 0: no correction), or
+            ``"auto"``: `AUTO_BIAS_REFITS` for least squares (OLS), none for the other
+            estimators, whose shrinkage and relevance pruning change with the noise level so
+            that the linear extrapolation does not hold for them (`bias_refits`).
+
+    Projection (`torchjfa.physical.project`):
+        project: project onto physically consistent parameters.
+        parametrization: ``"log-cholesky"`` (fully consistent) or ``"virtual"`` (the paper's
+            eq. 5: mass > 0, inertia positive semi-definite).
+        description_prior: ``"auto"`` (default), a weight >= 0 or None (no prior): the
+            projection is pulled towards the description's parameters where the data are
+            silent, with a weight chosen by cross-validation over the training blocks
+            (``"auto"``; `torchjfa.identification.make_consistent`). With ``project=False``
+            there is no projection and ``"auto"`` does nothing. In simulation, where the
+            description is the truth, turn it off: it would lend the fit the answer.
+        projection_options: more keywords of `torchjfa.physical.project`.
+
+    compute: `Compute` (chunking, device, processes, progress, the regressor's path).
+    """
+
+    # reading
+    columns: Mapping[str, str] | None = option(
+        None,
+        group="reading",
+        parse=parse.columns,
+        help="map the library's column names to the log's: 't=time,q_j1=pos1' or a JSON "
+        "object or file",
+    )
+    time_scale: float = option(
+        1.0, group="reading", help="seconds per unit of the time column, e.g. 1e-9 for ns"
+    )
+    drop_nan: bool = option(
+        False, group="reading", help="drop rows holding NaN (default: report them and stop)"
+    )
+    max_seconds: float | None = option(
+        None,
+        group="reading",
+        parse=parse.positive,
+        metavar="S",
+        help="use only the first S seconds of the log (a quick check)",
+    )
+    # preparation
+    cutoff: float | str = option(
+        "auto",
+        group="preparation",
+        parse=parse.auto_or("a positive cut-off in Hz", zero=False),
+        help="low-pass cut-off, Hz, or 'auto': the one of 2..30 Hz that predicts held-out "
+        "torques best inside the training part (torchjfa.data.choose_cutoff; 10 Hz, with a "
+        "warning, where the log is too short to choose)",
+    )
+    filter: str = option(
+        "butterworth",
+        group="preparation",
+        choices=("butterworth", "savgol"),
+        help="zero-phase low-pass filter: Butterworth (order 4) or Savitzky-Golay",
+    )
+    velocity: str = option(
+        "auto",
+        group="preparation",
+        choices=("auto", "measured", "differentiate"),
+        help="use the log's velocities ('measured'), differentiate the positions, or 'auto': "
+        "the log's velocities if it has them",
+    )
+    period: float | str | None = option(
+        "auto",
+        group="preparation",
+        parse=parse.auto_or("seconds", zero=False, none=True),
+        help="excitation period in s, 'auto' (detect) or 'none'",
+    )
+    skip_start: float | str = option(
+        0.0,
+        group="preparation",
+        parse=parse.auto_or("seconds", zero=True),
+        help="seconds of start-up transient to drop, or 'auto', which needs a period",
+    )
+    decimate: int = option(1, group="preparation", help="keep every k-th sample after filtering")
+    validation: float = option(
+        0.2, group="preparation", help="held-out fraction at the end of the log"
+    )
+    # the model's joint terms
+    friction: tuple[str, ...] | None = option(
+        None,
+        group="model",
+        parse=joint_terms,
+        help="joint terms, comma separated from viscous,coulomb,offset (friction) and armature "
+        "(reflected motor inertia), or 'none' (default: viscous,coulomb,offset)",
+    )
+    coulomb_velocity: float | str = option(
+        "auto",
+        group="model",
+        parse=parse.auto_or("a smoothing velocity >= 0 in rad/s", zero=True),
+        metavar="V",
+        help="smoothing velocity of the Coulomb friction term, rad/s: its column is "
+        "tanh(qd / V), sign(qd) for 0; 'auto' chooses it with the cut-off by the same "
+        "held-out prediction",
+    )
+    # estimation
+    estimator: str | LinearEstimator = option(
+        "ols",
+        group="estimator",
+        choices=_estimators,
+        help="the estimator (least squares by default; bayes-jfa is the paper's)",
+    )
+    estimator_options: Mapping[str, object] = option(
+        group="estimator",
+        default_factory=dict,
+        parse=parse.estimator_options,
+        metavar="K=V,...",
+        help="options of the estimator, e.g. 'max_iter=500,ard=output' or a JSON object",
+    )
+    weighting: str = option(
+        "residual",
+        group="estimator",
+        choices=("residual", "none"),
+        help="weight each joint's equations by its inverse residual variance from a first "
+        "least-squares fit (weighted least squares), or not at all",
+    )
+    input_noise: str | torch.Tensor | Sequence[float] = option(
+        "auto",
+        group="estimator",
+        choices=("auto", "learn", "periods", "propagated"),
+        help="the regressor's input noise (for the estimators that take it, and the "
+        "projection's metric): the spread between excitation periods ('periods'), the log's "
+        "sensor noise from its spectrum propagated through the preparation ('propagated'), "
+        "learned ('learn'), or 'auto': periods when the training data hold two or more, else "
+        "propagated for an estimator that takes an input noise",
+    )
+    jackknife: int = option(
+        20, group="estimator", help="blocks for the jackknife spread of the parameters, 0: none"
+    )
+    bias_correction: int | str = option(
+        "auto",
+        group="estimator",
+        parse=parse.refits,
+        metavar="N",
+        help="refits on the log with re-drawn sensor noise for the noise's bias of the "
+        "estimate (SIMEX), subtracted before the projection; 0: none; 'auto': "
+        f"{AUTO_BIAS_REFITS} for ols, none for the other estimators",
+    )
+    # projection
+    project: bool = option(
+        True, group="projection", help="skip the projection onto consistent parameters"
+    )
+    parametrization: str = option(
+        "log-cholesky",
+        group="projection",
+        choices=("log-cholesky", "virtual"),
+        help="the projection's parameters: log-Cholesky, fully consistent (triangle "
+        "inequalities too), or the paper's virtual parameters (mass > 0, inertia PSD)",
+    )
+    description_prior: float | str | None = option(
+        "auto",
+        group="projection",
+        parse=parse.prior,
+        help="pull the projection towards the description where the data are silent: 'auto' "
+        "(the weight chosen by cross-validation over blocks of the training data) or a weight "
+        "(prior std = a typical value of each kind / sqrt(weight)); 0 turns it off",
+    )
+    projection_options: Mapping[str, object] = option(
+        group="projection", default_factory=dict, cli=False, help=""
+    )
+    compute: Compute = option(group="compute", default_factory=Compute, cli=False, help="")
+
+    def __post_init__(self) -> None:
+        if self.friction is not None:
+            object.__setattr__(self, "friction", joint_terms(self.friction))
+        for f in fields(self):
+            choices = f.metadata.get("choices")
+            value = getattr(self, f.name)
+            if choices is not None and isinstance(value, str):
+                _choice(f.name, value, choices() if callable(choices) else choices)
+        _check_numbers(self)
+        _check_estimator_options(self)
+        w = self.description_prior
+        if w not in (None, "auto") and (
+            isinstance(w, bool | str) or not 0 <= parse.number(w) < float("inf")
+        ):
+            raise IdentificationError(
+                f"description_prior must be None, a weight >= 0 or 'auto', got {w!r}"
+            )
+        if self.description_prior not in (None, "auto") and not self.project:
+            raise IdentificationError(
+                "the description prior acts in the projection: it needs project=True"
+            )
+        if self.skip_start == "auto" and self.period is None:
+            raise IdentificationError("skip_start='auto' needs a period ('auto' or seconds)")
+        if (
+            self.friction is not None
+            and "coulomb" not in self.friction
+            and self.coulomb_velocity != "auto"
+        ):
+            raise IdentificationError(
+                "coulomb_velocity smooths the Coulomb term, which friction does not include"
+            )
+
+    def bias_refits(self, estimator) -> int:
+        """How many refits the bias correction makes for ``estimator`` (0: none)."""
+        if self.bias_correction != "auto":
+            return int(self.bias_correction)
+        from ..estimators import OLS
+
+        return AUTO_BIAS_REFITS if type(estimator) is OLS else 0
+
+    def replace(self, **changes) -> Options:
+        """A copy with ``changes`` (``Options`` is frozen)."""
+        return replace(self, **changes)
+
+
+def _check_numbers(o: Options) -> None:
+    """The numeric options' ranges."""
+    if o.cutoff != "auto" and not 0 < parse.number(o.cutoff) < float("inf"):
+        raise IdentificationError(f"cutoff must be 'auto' or a positive Hz, got {o.cutoff!r}")
+    v_c = o.coulomb_velocity
+    if v_c != "auto" and not 0 <= parse.number(v_c) < float("inf"):
+        raise IdentificationError(
+            f"coulomb_velocity must be 'auto' or a number >= 0, rad/s, got {v_c!r}"
+        )
+    if not 0.0 < parse.number(o.validation) < 1.0:
+        raise IdentificationError(f"validation must be a fraction in (0, 1), got {o.validation}")
+    if isinstance(o.decimate, bool) or not isinstance(o.decimate, int) or o.decimate < 1:
+        raise IdentificationError(f"decimate must be a whole number >= 1, got {o.decimate!r}")
+    k = o.jackknife
+    if isinstance(k, bool) or not isinstance(k, int) or k == 1 or k < 0:
+        raise IdentificationError(f"jackknife must be 0 (off) or at least 2 blocks, got {k!r}")
+    n = o.bias_correction
+    if n != "auto" and (isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0):
+        raise IdentificationError(
+            f"bias_correction must be 'auto', 0 (off) or at least 2 refits, got {n!r}"
+        )
+
+
+def _check_estimator_options(o: Options) -> None:
+    """``estimator_options`` only with an estimator given by name, and only options it takes."""
+    if not o.estimator_options:
+        return
+    if not isinstance(o.estimator, str):
+        raise IdentificationError(
+            f"estimator_options {dict(o.estimator_options)} apply to an estimator given by "
+            f"name; the {type(o.estimator).__name__} given is used as it is (set its options "
+            "when you make it)"
+        )
+    from ..estimators import takes
+
+    bad = sorted(k for k in o.estimator_options if not takes(o.estimator, k))
+    if bad:
+        raise IdentificationError(
+            f"estimator {o.estimator!r} takes no option {', '.join(bad)} (see "
+            f"torchjfa.estimators.make({o.estimator!r}) for its options)"
+        )
+
+
+def _choice(name: str, value, allowed: Sequence[str]) -> None:
     if value not in allowed:
-        raise IdentificationError(f"{name} must be one of {allowed}, got {value!r}")
+        raise IdentificationError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
+
+
+def cli_fields(cls=Options) -> list[Field]:
+    """The fields of ``cls`` (and of its `Compute`) the command line sets, in `GROUPS` order."""
+    out = [f for f in fields(cls) if f.metadata.get("cli", False)]
+    if cls is Options:
+        out += cli_fields(Compute)
+    order = list(GROUPS)
+    return sorted(out, key=lambda f: order.index(f.metadata["group"]))
+
+
+def parser_type(f: Field) -> Callable[[str], object]:
+    """The argparse ``type`` of a field: its ``parse`` (errors turned into argparse's)."""
+    fn = f.metadata.get("parse")
+    if fn is None:
+        default = f.default
+        fn = type(default) if default is not MISSING and default is not None else str
+    return parse.typed(fn)

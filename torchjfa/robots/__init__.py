@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib.metadata
 from pathlib import Path
 
-__all__ = ["path", "available", "example_robot_data_path"]
+__all__ = ["path", "available", "example_robot_data_path", "SIMULATED", "simulated_path"]
 
 _ERD = "example-robot-data"
 _ERD_ROBOTS = "share/example-robot-data/robots/"
@@ -26,6 +26,10 @@ _FILES = {
     "panda_arm": "panda_arm.urdf",
     "branched_tree": "branched_tree.xml",
 }
+
+#: the simulated Sarcos-like robots of `torchjfa.sim` (MJCF, MuJoCo simulates them): name -> file
+SIMULATED = {"head": "sarcos_head.xml", "arm": "sarcos_arm.xml"}
+_SIMULATED_DIR = _HERE.parent / "sim" / "models"
 
 
 def available() -> tuple[str, ...]:
@@ -49,6 +53,18 @@ def path(name: str) -> str:
     if name not in _FILES:
         raise ValueError(f"unknown robot {name!r}; available: {available()}")
     return str(_HERE / _FILES[name])
+
+
+def simulated_path(name: str) -> str:
+    """Absolute path of a simulated robot's MJCF file (``"head"`` or ``"arm"``, `SIMULATED`);
+    reading the path needs no MuJoCo, simulating the robot does (`torchjfa.sim`).
+
+    Raises:
+        ValueError: for an unknown name.
+    """
+    if name not in SIMULATED:
+        raise ValueError(f"unknown simulated robot {name!r}; choose from {tuple(SIMULATED)}")
+    return str(_SIMULATED_DIR / SIMULATED[name])
 
 
 def example_robot_data_path(relative: str) -> str:

@@ -13,6 +13,7 @@ from ..data import PeriodNoise as PeriodNoise
 from ..data import regressor_noise as regressor_noise
 from ._control import ControlResult as ControlResult
 from ._control import computed_torque as computed_torque
+from ._control import evaluate_control as evaluate_control
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise

@@ -22,7 +22,7 @@ runs as FAILURE.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -31,10 +31,12 @@ import torch
 
 from .._joints import permutation
 from .._progress import progress_bar
-from ._robots import check_hinge_robot, joint_names, joint_ranges
+from ..dynamics import InverseDynamics, RigidBodyModel
+from ._generate import DEFAULT_RATES
+from ._robots import check_hinge_robot, joint_names, joint_ranges, load_robot
 from ._trajectory import SinusoidTrajectory
 
-__all__ = ["ControlResult", "computed_torque"]
+__all__ = ["ControlResult", "computed_torque", "evaluate_control"]
 
 
 @dataclass(frozen=True)
@@ -313,3 +315,45 @@ def _track(m: mujoco.MjModel, run: _Run, tau_ref: np.ndarray, substeps: int, pro
         float(np.abs(err_q).max()),
         n_steps,
     )
+
+
+def evaluate_control(
+    robot: str,
+    model: RigidBodyModel,
+    thetas: Mapping[str, torch.Tensor],
+    trajectory,
+    *,
+    duration: float,
+    unmodeled: bool | Mapping = True,
+    bandwidth_hz: float = 5.0,
+    progress: bool = False,
+) -> dict[str, ControlResult]:
+    """Computed-torque control of the simulated robot with each parameter vector.
+
+    Args:
+        robot: ``"head"`` or ``"arm"`` (control at its default rate).
+        model: the rigid-body model the parameters belong to.
+        thetas: name -> ``(n_params,)`` parameters.
+        trajectory: the held-out reference (a `SinusoidTrajectory`).
+        duration: seconds of control per run.
+        unmodeled: the robot's joint effects (as `load_robot`).
+        bandwidth_hz: bandwidth of the error dynamics.
+        progress: show a progress bar over the runs.
+
+    Returns:
+        name -> `ControlResult` (``success=False`` is the paper's FAILURE).
+    """
+    mj = load_robot(robot, unmodeled=unmodeled)
+    out = {}
+    with progress_bar(total=len(thetas), desc=f"control {robot}", enabled=progress) as bar:
+        for name, theta in thetas.items():
+            out[name] = computed_torque(
+                mj,
+                InverseDynamics(model, theta),
+                trajectory,
+                duration=duration,
+                control_rate=DEFAULT_RATES[robot],
+                bandwidth_hz=bandwidth_hz,
+            )
+            bar.update(1)
+    return out

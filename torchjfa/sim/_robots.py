@@ -52,6 +52,8 @@ import mujoco
 import numpy as np
 import torch
 
+from ..robots import SIMULATED, simulated_path
+
 __all__ = [
     "ROBOTS",
     "EFFECTS",
@@ -62,11 +64,9 @@ __all__ = [
     "true_parameters",
 ]
 
-ROBOTS = {"head": "sarcos_head.xml", "arm": "sarcos_arm.xml"}
+ROBOTS = SIMULATED
 EFFECTS = ("damping", "armature", "frictionloss", "stiffness")
 UNMODELED = ("armature", "frictionloss", "stiffness")
-
-_MODELS = Path(__file__).resolve().parent / "models"
 
 
 def model_path(robot: str) -> Path:
@@ -80,7 +80,7 @@ def model_path(robot: str) -> Path:
     """
     if robot not in ROBOTS:
         raise ValueError(f"unknown robot {robot!r}; choose from {tuple(ROBOTS)}")
-    return _MODELS / ROBOTS[robot]
+    return Path(simulated_path(robot))
 
 
 def _fields(model: mujoco.MjModel) -> dict[str, np.ndarray]:

@@ -25,7 +25,7 @@ For the simulated 7-DoF head (420 Hz) and 10-DoF arm (480 Hz) of `torchjfa.sim`,
 
 `format_table` prints a result in the paper's layout, `plot_tracking` draws the per-joint
 tracking errors, `goal_check` tests the issue's goal (all three, with `RobotResult`, live in
-`torchjfa.experiments._results` and are re-exported here). ``scripts/reproduce_tables.py`` and
+`experiments._results` and are re-exported here). ``scripts/reproduce_tables.py`` and
 ``notebooks/robot_identification.ipynb`` are thin shells over `run`. Nothing is tuned on the
 test trajectory: every hyper-parameter is fixed or chosen on the training log.
 """
@@ -38,17 +38,22 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
-from .._progress import progress_bar
-from ..dynamics import InverseDynamics, RigidBodyModel
-from ..estimators import make
-from ..metrics import nmse
-from ..physical import check
-from ..pipeline import estimate, project_estimate, residual_joint_weights, stream_moments
-from ..sim import (
+from torchjfa._progress import progress_bar
+from torchjfa.dynamics import RigidBodyModel
+from torchjfa.identification import (
+    Options,
+    fit,
+    make_consistent,
+    residual_joint_weights,
+    stream_moments,
+)
+from torchjfa.metrics import nmse
+from torchjfa.physical import check
+from torchjfa.sim import (
     DEFAULT_RATES,
     ControlResult,
     SensorNoise,
-    computed_torque,
+    evaluate_control,
     generate_log,
     load_robot,
     model_path,
@@ -56,7 +61,8 @@ from ..sim import (
     regressor_noise,
     true_parameters,
 )
-from ..stats import Moments
+from torchjfa.stats import Moments
+
 from ._results import (
     LABELS,
     METHODS,
@@ -76,7 +82,7 @@ __all__ = [
     "RobotResult",
     "true_theta",
     "block_moments",
-    "identify",
+    "fit_methods",
     "evaluate_control",
     "run_robot",
     "run",
@@ -110,7 +116,7 @@ def block_moments(
     progress: bool = False,
 ) -> list[Moments]:
     """`Moments` of ``n_blocks`` contiguous time blocks of a log (fold moments for CV):
-    `torchjfa.pipeline.stream_moments` with ``n_folds=n_blocks``.
+    `torchjfa.identification.stream_moments` with ``n_folds=n_blocks``.
 
     Args:
         model: the robot model (its regressor).
@@ -140,19 +146,31 @@ _ESTIMATORS = {
 }
 
 
-def _estimator(method: str, input_noise, options: Mapping) -> object:
+def _options(method: str, input_noise, options: Mapping) -> Options:
+    """The `torchjfa.identification.Options` of one method on moments already formed: its
+    estimator and options, the virtual parametrisation, no prior, no jackknife."""
     if method not in _ESTIMATORS:
         raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
     name, defaults = _ESTIMATORS[method]
-    kw = {"fit_intercept": False, **defaults, **options.get(method.split("-")[0], {})}
+    noise = "learn"
     if method == "bjfa-noise":
         if input_noise is None:
             raise ValueError("method 'bjfa-noise' needs input_noise (e.g. from regressor_noise)")
-        kw["input_noise"] = input_noise
-    return make(name, **kw)
+        noise = input_noise
+    return Options(
+        estimator=name,
+        estimator_options={**defaults, **options.get(method.split("-")[0], {})},
+        weighting="none",
+        input_noise=noise,
+        jackknife=0,
+        bias_correction=0,
+        parametrization="virtual",
+        description_prior=None,
+        projection_options=dict(options.get("project") or {}),
+    )
 
 
-def identify(
+def fit_methods(
     model: RigidBodyModel,
     folds: Sequence[Moments],
     *,
@@ -162,7 +180,7 @@ def identify(
     progress: bool = False,
 ) -> dict[str, Identified]:
     """Fit every method on the fold moments and project each estimate (see the module):
-    `torchjfa.pipeline.estimate` and `torchjfa.pipeline.project_estimate` per method.
+    `torchjfa.identification.fit` and `torchjfa.identification.make_consistent` per method.
 
     Args:
         model: the robot model (the parameter layout).
@@ -182,24 +200,19 @@ def identify(
     folds = list(folds)
     if len(folds) < 2 or not all(isinstance(f, Moments) for f in folds):
         raise TypeError("folds must be a list of at least two torchjfa.Moments")
-    total = folds[0]
-    for f in folds[1:]:
-        total = total + f
     out = {}
     with progress_bar(total=len(methods), desc="identify", enabled=progress) as bar:
         for method in methods:
-            est = _estimator(method, input_noise, options)
-            given = input_noise if method == "bjfa-noise" else None
+            opts = _options(method, input_noise, options)
             start = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 # non-convergence is reported, not raised
-                fit = estimate(est, total, folds, input_noise=given)
+                result = fit(model, folds, options=opts)
+            est = result.estimator
             fit_s = time.perf_counter() - start
             start = time.perf_counter()
-            proj = project_estimate(
-                model, fit, total, parametrization="virtual", options=options.get("project")
-            ).projection
+            proj = make_consistent(result, opts).projection
             out[method] = Identified(
                 method=method,
                 theta_hat=est.coef_.detach().clone(),
@@ -212,48 +225,6 @@ def identify(
                 projection_cost=proj.cost,
                 projection_converged=proj.converged,
                 warnings=tuple(dict.fromkeys(str(w.message) for w in caught)),
-            )
-            bar.update(1)
-    return out
-
-
-def evaluate_control(
-    robot: str,
-    model: RigidBodyModel,
-    thetas: Mapping[str, torch.Tensor],
-    trajectory,
-    *,
-    duration: float,
-    unmodeled: bool | Mapping = True,
-    bandwidth_hz: float = 5.0,
-    progress: bool = False,
-) -> dict[str, ControlResult]:
-    """Computed-torque control of the simulated robot with each parameter vector.
-
-    Args:
-        robot: ``"head"`` or ``"arm"`` (control at its default rate).
-        model: the rigid-body model the parameters belong to.
-        thetas: name -> ``(n_params,)`` parameters.
-        trajectory: the held-out reference (a `SinusoidTrajectory`).
-        duration: seconds of control per run.
-        unmodeled: the robot's joint effects (as `load_robot`).
-        bandwidth_hz: bandwidth of the error dynamics.
-        progress: show a progress bar over the runs.
-
-    Returns:
-        name -> `ControlResult` (``success=False`` is the paper's FAILURE).
-    """
-    mj = load_robot(robot, unmodeled=unmodeled)
-    out = {}
-    with progress_bar(total=len(thetas), desc=f"control {robot}", enabled=progress) as bar:
-        for name, theta in thetas.items():
-            out[name] = computed_torque(
-                mj,
-                InverseDynamics(model, theta),
-                trajectory,
-                duration=duration,
-                control_rate=DEFAULT_RATES[robot],
-                bandwidth_hz=bandwidth_hz,
             )
             bar.update(1)
     return out
@@ -302,7 +273,7 @@ def run_robot(
         options: passed to `identify`.
         weighting: ``"none"`` (every equation weight 1, the paper's setting) or
             ``"residual"``: each joint's equations weighted by its inverse residual variance
-            after a first OLS fit (`torchjfa.pipeline.residual_joint_weights`); the input noise
+            after a first OLS fit (`torchjfa.identification.residual_joint_weights`); the input noise
             is then that of the weighted rows.
         friction: the identification model's joint terms (the paper's: viscous only);
             ``("viscous", "armature")`` models the simulated robots' armature, which the
@@ -343,7 +314,7 @@ def run_robot(
         model, log, max_periods=noise_periods, progress=progress, joint_weights=weights
     )
     lap("noise")
-    found = identify(
+    found = fit_methods(
         model,
         folds,
         methods=methods,

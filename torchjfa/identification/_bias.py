@@ -1,5 +1,7 @@
-"""`signal_bootstrap`: the parametric bootstrap of the flow's estimate through the signal noise;
-`simex_bias`: the estimate's errors-in-variables bias from the same refits."""
+"""The `correct_bias` stage: the errors-in-variables bias of the unconstrained estimate, from
+refits on the raw log with re-drawn sensor noise (`simex_bias`), subtracted before the
+projection; `signal_bootstrap`: those refits, the parametric bootstrap of the estimate through
+the sensor noise."""
 
 from __future__ import annotations
 
@@ -8,14 +10,17 @@ from dataclasses import replace
 import torch
 
 from .._progress import progress_bar
-from ..data import SignalNoise, redrawn_logs
+from .._result import IdentificationResult
+from .._stream import stream_moments
+from ..data import LogError, SignalNoise, redrawn_logs
 from ..dynamics import RigidBodyModel
 from ..estimators import bootstrap
-from ..pipeline import stream_moments
+from ._fit import make_estimator
+from ._noise import NoiseChoice
 from ._options import IdentificationError, Options
-from ._stages import NoiseChoice, PreparedData, make_estimator
+from ._prepare import PreparedData
 
-__all__ = ["signal_bootstrap", "simex_bias"]
+__all__ = ["correct_bias", "signal_bootstrap", "simex_bias"]
 
 
 def signal_bootstrap(
@@ -136,3 +141,78 @@ def simex_bias(
     )  # fmt: skip
     theta_hat = torch.as_tensor(theta_hat, dtype=coefs.dtype, device=coefs.device)
     return coefs.mean(0) - theta_hat, coefs
+
+
+def correct_bias(
+    result: IdentificationResult,
+    data: PreparedData | None = None,
+    noise: NoiseChoice | None = None,
+    options: Options | None = None,
+    *,
+    bias: torch.Tensor | None = None,
+) -> IdentificationResult:
+    """Subtract the sensor noise's bias from the unconstrained estimate: the stage after `fit`.
+
+    With ``options.bias_refits(result.estimator)`` refits (``bias_correction="auto"``: 20 for
+    OLS, none for the other estimators, whose shrinkage and pruning change with the noise
+    level) the bias is `simex_bias`'s, subtracted from ``theta_hat`` and from each of the
+    jackknife's refits (so the jackknife spread, now about the corrected estimate, stays).
+    Where the raw log's noise cannot be read (its spectrum), the estimate stays as it is and
+    the result's ``warnings`` say so.
+
+    Args:
+        result: the `IdentificationResult` of `fit` on ``data`` with ``noise`` and ``options``.
+        data: the `PreparedData` (with ``raw``, the raw log it was prepared from).
+        noise: the `NoiseChoice` of the fit.
+        options: the `Options` of the fit.
+        bias: ``(n_params,)`` a bias to subtract instead (``data``, ``noise`` and the refits
+            are then not needed).
+
+    Returns:
+        ``result`` itself when no refits are asked for, else a corrected copy
+        (``theta_hat_bias`` and, from the refits, ``theta_hat_redrawn`` set).
+
+    Raises:
+        IdentificationError: after `make_consistent`, or on a ``bias`` of the wrong shape or
+            not finite.
+    """
+    if result.projection is not None:
+        raise IdentificationError("correct_bias comes before make_consistent, not after it")
+    coefs = None
+    if bias is None:
+        options = Options() if options is None else options
+        n_refits = options.bias_refits(result.estimator)
+        if not n_refits:
+            return result
+        if not isinstance(data, PreparedData) or noise is None:
+            raise IdentificationError(
+                "the bias correction refits on the raw log: pass the PreparedData and the "
+                "NoiseChoice of the fit (or bias_correction=0)"
+            )
+        try:
+            bias, coefs = simex_bias(
+                result.model, data, noise, result.theta_hat, options, n_draws=n_refits,
+                progress=options.compute.progress,
+            )  # fmt: skip
+        except (LogError, IdentificationError) as err:
+            note = (
+                f"the estimate is not corrected for the sensor noise's bias ({err}); "
+                "bias_correction=0 (--bias-correction 0) turns the correction off"
+            )
+            return replace(result, warnings=[*result.warnings, note])
+    bias = torch.as_tensor(bias, dtype=result.theta_hat.dtype, device=result.theta_hat.device)
+    if bias.shape != result.theta_hat.shape or not bool(torch.isfinite(bias).all()):
+        raise IdentificationError(
+            f"the bias must be {tuple(result.theta_hat.shape)} finite values, got shape "
+            f"{tuple(bias.shape)}"
+        )
+    jack = result.theta_hat_jackknife
+    theta_hat = result.theta_hat - bias
+    return replace(
+        result,
+        theta=theta_hat,
+        theta_hat=theta_hat,
+        theta_hat_jackknife=None if jack is None else jack - bias,
+        theta_hat_bias=bias if result.theta_hat_bias is None else result.theta_hat_bias + bias,
+        theta_hat_redrawn=coefs,
+    )

@@ -1,6 +1,6 @@
 """The seed paper's synthetic comparison (Fig. 2), run for every estimator of the library.
 
-`run` draws trials with `torchjfa.experiments.synthetic.make_problem`, fits every method on
+`run` draws trials with `experiments.synthetic.make_problem`, fits every method on
 the noisy training set (hyper-parameters chosen on the training set only: GCV for ridge,
 contiguous 5-fold cross-validation for PLS and LASSO, an F-test for stepwise) and scores
 normalised MSE (`torchjfa.metrics.nmse`: MSE / var(y_test)) on a noiseless and a noisy test set. `summarize` averages over
@@ -16,9 +16,10 @@ from dataclasses import dataclass
 
 import torch
 
-from .._progress import progress_bar
-from ..estimators import JFA, OLS, PLS, TLS, BayesianJFA, Lasso, Ridge, Stepwise
-from ..metrics import nmse
+from torchjfa._progress import progress_bar
+from torchjfa.estimators import JFA, OLS, PLS, TLS, BayesianJFA, Lasso, Ridge, Stepwise
+from torchjfa.metrics import nmse
+
 from .synthetic import SyntheticProblem, make_problem
 
 __all__ = [

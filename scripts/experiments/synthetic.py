@@ -6,7 +6,7 @@ with Gaussian noise; redundant inputs are random convex combinations of the *noi
 inputs; irrelevant inputs are ``N(0, 1)``; ``10 + r + u = 100`` in the paper.
 
 Use `make_problem` to draw one trial (training set, a noiseless test set and a noisy test set,
-all from the same covariance and mixing weights); `torchjfa.experiments.fig2` runs the whole
+all from the same covariance and mixing weights); `experiments.fig2` runs the whole
 protocol. SNR is signal variance over noise variance, as in the paper.
 
 Choices the paper leaves open, made here and documented: the covariance of the relevant inputs

@@ -1,4 +1,5 @@
-"""The streaming identification flow: npz/in-memory logs -> Moments -> estimator -> projection.
+"""The `fit` and `make_consistent` stages on prepared logs: npz/in-memory logs -> Moments ->
+estimator -> projection.
 
 References are independent of the streaming code: the regressor of the whole log at once with
 `Moments.from_data` (the in-memory path), folds cut by hand, and torques computed directly.
@@ -11,18 +12,14 @@ import tracemalloc
 import numpy as np
 import pytest
 import torch
+from _flow import fit_logs
 from _robots import TWO_LINK
 
+from torchjfa.data import log_length
 from torchjfa.dynamics import InverseDynamics, RigidBodyModel
 from torchjfa.estimators import OLS, BayesianJFA, Ridge
+from torchjfa.identification import IdentificationResult, residual_joint_weights, stream_moments
 from torchjfa.physical import check, project
-from torchjfa.pipeline import (
-    IdentificationResult,
-    identify,
-    log_length,
-    residual_joint_weights,
-    stream_moments,
-)
 from torchjfa.sim import SimulatedLog, generate_log, model_path
 from torchjfa.stats import Moments
 
@@ -126,7 +123,7 @@ def test_fold_moments_match_hand_cut_folds(head, files):
 
 def test_identify_ols_equals_in_memory_fit(head, reference, files):
     model, _, _ = head
-    result = identify(
+    result = fit_logs(
         model, files[0], estimator=OLS(fit_intercept=False), project=False, chunk_size=300
     )
     assert isinstance(result, IdentificationResult)
@@ -142,7 +139,7 @@ def test_identify_bayesian_jfa_equals_in_memory_fit(head, reference, files):
     # the defaults, fitted to convergence: the streamed moments (summed in another order)
     # give the in-memory fit's answer to round-off (the optimiser does not depend on the path)
     kw = {"fit_intercept": False}
-    result = identify(model, files[1], estimator=BayesianJFA(**kw), project=False)
+    result = fit_logs(model, files[1], estimator=BayesianJFA(**kw), project=False)
     expected = BayesianJFA(**kw).fit_moments(reference)
     assert expected.converged_
     assert rel(result.theta_hat, expected.coef_) <= 1e-8
@@ -169,7 +166,7 @@ class _FoldOLS(OLS):
 
 def test_identify_gives_cross_validating_estimators_sample_folds(head, files):
     model, log, Y = head
-    result = identify(model, files[1], estimator=_FoldOLS(cv=3), project=False)
+    result = fit_logs(model, files[1], estimator=_FoldOLS(cv=3), project=False)
     assert len(result.folds) == 3 and len(result.estimator.seen_folds_) == 3
     bounds = [round(k * N_SAMPLES / 3) for k in range(4)]
     for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
@@ -184,7 +181,7 @@ def test_identify_projects_and_returns_inverse_dynamics(head, reference, files):
     model, log, Y = head
     noise = torch.full((model.n_params,), 1e-6, dtype=torch.float64)
     options = {"max_iter": 60, "warm_start": False}
-    result = identify(
+    result = fit_logs(
         model,
         files[0],
         estimator=OLS(fit_intercept=False),
@@ -252,17 +249,17 @@ def test_bad_input_raises(head, files, tmp_path):
     model, log, _ = head
     compressed, parts = files
     with pytest.raises(ValueError, match="fit_intercept"):
-        identify(model, compressed, estimator=OLS())
+        fit_logs(model, compressed, estimator=OLS())
     with pytest.raises(TypeError, match="estimator"):
-        identify(model, compressed, estimator=object())
+        fit_logs(model, compressed, estimator=object())
     with pytest.raises(TypeError, match="RigidBodyModel"):
-        identify("head", compressed)
+        fit_logs("head", compressed)
     with pytest.raises(ValueError, match="input_noise"):
-        identify(model, compressed, input_noise=torch.ones(3))
+        fit_logs(model, compressed, input_noise=torch.ones(3))
     with pytest.raises(ValueError, match="input_noise"):
-        identify(model, compressed, input_noise=-1.0)
+        fit_logs(model, compressed, input_noise=-1.0)
     with pytest.raises(ValueError, match="projection_options"):
-        identify(model, compressed, projection_options={"moments": None})
+        fit_logs(model, compressed, projection_options={"moments": None})
     with pytest.raises(ValueError, match="process group"):
         stream_moments(model, compressed, distributed=True)
     with pytest.raises(ValueError, match="chunk_size"):
@@ -299,7 +296,7 @@ def test_identify_jackknife_spread_matches_hand_cut_blocks(head, files):
     model, log, Y = head
     K = 3
     ridge = Ridge(alpha=1e-3, fit_intercept=False)  # well posed despite the unidentifiable columns
-    result = identify(model, files[1], estimator=ridge, project=False, jackknife=K)
+    result = fit_logs(model, files[1], estimator=ridge, project=False, jackknife=K)
     bounds = [round(k * N_SAMPLES / K) for k in range(K + 1)]
     eps = torch.finfo(torch.float64).eps
 
@@ -331,7 +328,7 @@ def test_identify_jackknife_spread_matches_hand_cut_blocks(head, files):
     tol_std = 4 * max(conds) * eps * float(C.abs().max() / std.max())
     assert rel(result.theta_hat_std, std) <= tol_std
     with pytest.raises(ValueError, match="jackknife"):
-        identify(model, files[1], estimator=OLS(fit_intercept=False), jackknife=1)
+        fit_logs(model, files[1], estimator=OLS(fit_intercept=False), jackknife=1)
 
 
 def test_joint_weights_weight_each_joints_rows(head, files):
@@ -360,7 +357,7 @@ def test_residual_joint_weights_are_inverse_ols_residual_variances(head, files):
     # solution leave residuals that differ by ~0.1 %
     np.testing.assert_allclose(w.numpy(), inv / inv.mean(), rtol=5e-3)
     assert float(w.mean()) == pytest.approx(1.0)
-    result = identify(
+    result = fit_logs(
         model, files[1], estimator=OLS(fit_intercept=False), joint_weights=w, project=False
     )
     torch.testing.assert_close(result.joint_weights, w)
@@ -384,11 +381,11 @@ def test_auto_prior_scores_each_block_by_the_closed_form_written_out():
     description's parameter scales; a 1e-8 ridge at w = 0), the held-out block's squared error;
     the RMS over all rows."""
     from torchjfa.estimators import OLS
+    from torchjfa.identification import PRIOR_BLOCKS, PRIOR_WEIGHTS
     from torchjfa.physical import parameter_scales
-    from torchjfa.pipeline import PRIOR_BLOCKS, PRIOR_WEIGHTS
 
     model, log = _two_link_log()
-    auto = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+    auto = fit_logs(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
     Y, tau = model.regressor(log["q"], log["qd"], log["qdd"]), log["tau"]
     n, d = Y.shape[0], model.n_params
     bounds = [round(k * n / PRIOR_BLOCKS) for k in range(PRIOR_BLOCKS + 1)]
@@ -421,17 +418,17 @@ def test_auto_prior_scores_each_block_by_the_closed_form_written_out():
 def test_auto_prior_reuses_the_jackknifes_refits(monkeypatch):
     """With the jackknife on the same blocks, the prior's choice takes its leave-one-block-out
     estimates instead of refitting: the same scores as the refits give (round-off)."""
-    import torchjfa._prior
-    from torchjfa.pipeline import PRIOR_BLOCKS
+    import torchjfa.identification._prior
+    from torchjfa.identification import PRIOR_BLOCKS
 
     model, log = _two_link_log()
-    refit = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+    refit = fit_logs(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
 
     def no_refit(*args):
         raise AssertionError("refitted although the jackknife's estimates were at hand")
 
-    monkeypatch.setattr(torchjfa._prior, "refit_without", no_refit)
-    reuse = identify(
+    monkeypatch.setattr(torchjfa.identification._prior, "refit_without", no_refit)
+    reuse = fit_logs(
         model, log, estimator=OLS(fit_intercept=False), description_prior="auto",
         jackknife=PRIOR_BLOCKS,
     )  # fmt: skip
@@ -442,25 +439,25 @@ def test_auto_prior_reuses_the_jackknifes_refits(monkeypatch):
 
 def test_description_prior_options():
     from torchjfa.estimators import OLS
-    from torchjfa.pipeline import PRIOR_WEIGHTS
+    from torchjfa.identification import PRIOR_WEIGHTS
 
     model, log = _two_link_log()
-    plain = identify(model, log, estimator=OLS(fit_intercept=False), jackknife=3)
+    plain = fit_logs(model, log, estimator=OLS(fit_intercept=False), jackknife=3)
     assert plain.prior_weight is None and plain.prior_choice is None
     assert plain.theta_hat_jackknife.shape == (3, model.n_params)
     # weight 0: the plain projection, exactly (same moments, no prior term)
-    zero = identify(
+    zero = fit_logs(
         model, log, estimator=OLS(fit_intercept=False), jackknife=3, description_prior=0
     )
     assert torch.equal(zero.theta, plain.theta) and zero.prior_weight == 0.0
-    auto = identify(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
+    auto = fit_logs(model, log, estimator=OLS(fit_intercept=False), description_prior="auto")
     assert set(auto.prior_choice) == set(PRIOR_WEIGHTS) and auto.prior_weight in PRIOR_WEIGHTS
     assert auto.folds is None  # the blocks of the choice are not the result's folds
     assert all(v > 0 for v in auto.prior_choice.values())
     # an out-of-plane parameter (a zero column) goes towards the description with a prior
     # (not all the way at the default tol: the prior's curvature is ~1/N of the data's, below
     # the stopping test's resolution; tol=1e-10 gets within 0.1% with "virtual")
-    strong = identify(model, log, estimator=OLS(fit_intercept=False), description_prior=1.0)
+    strong = fit_logs(model, log, estimator=OLS(fit_intercept=False), description_prior=1.0)
     i = model.parameter_names.index("j2.Ixx")
     nominal = float(model.nominal_theta[i])
     assert abs(float(strong.theta[i]) - nominal) < 0.2 * nominal
@@ -469,8 +466,8 @@ def test_description_prior_options():
     assert strong.rmse() <= plain.rmse() * 1.01
     for bad, match in ((-1.0, "weight >= 0"), ("best", "'auto'"), (True, "weight >= 0")):
         with pytest.raises(ValueError, match=match):
-            identify(model, log, estimator=OLS(fit_intercept=False), description_prior=bad)
+            fit_logs(model, log, estimator=OLS(fit_intercept=False), description_prior=bad)
     with pytest.raises(ValueError, match="project=True"):
-        identify(model, log, project=False, description_prior=1.0)
+        fit_logs(model, log, project=False, description_prior=1.0)
     with pytest.raises(ValueError, match="do not also pass"):
-        identify(model, log, description_prior=1.0, projection_options={"prior_weight": 1.0})
+        fit_logs(model, log, description_prior=1.0, projection_options={"prior_weight": 1.0})

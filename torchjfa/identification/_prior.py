@@ -1,5 +1,5 @@
-"""The description as a prior of the projection: `torchjfa.pipeline.identify`'s
-``description_prior``.
+"""The description as a prior of the projection: ``Options.description_prior`` of
+`torchjfa.identification.make_consistent`.
 
 The prior term ``w * sigma^2 * sum_k ((theta_k - nominal_k) / p_k)^2`` beside eq. 8's
 ``||y - X theta||^2 - const`` is a Gaussian prior of standard deviation ``p_k / sqrt(w)`` on each
@@ -18,9 +18,9 @@ from typing import NamedTuple
 
 import torch
 
-from .estimators._jackknife import refit_totals, refit_without
-from .physical import parameter_scales, unconstrained_projection
-from .stats import Moments
+from ..estimators._jackknife import refit_totals, refit_without
+from ..physical import parameter_scales, unconstrained_projection
+from ..stats import Moments
 
 __all__ = [
     "PRIOR_WEIGHTS",
@@ -32,7 +32,7 @@ __all__ = [
     "prior_options",
 ]
 
-#: the weights ``identify(..., description_prior="auto")`` chooses from (0: no prior); a weight
+#: the weights ``Options(description_prior="auto")`` chooses from (0: no prior); a weight
 #: w gives each parameter a prior standard deviation of its physical scale / sqrt(w). Above
 #: ~100 the prior also shrinks the weakly determined directions towards the description (a
 #: ridge towards it, not only a tie-break): the held-out block decides whether that helps
@@ -125,7 +125,7 @@ def choose_prior_weight(
     ``options`` may set ``ridge``.
 
     ``coefs``: ``(K, n_params)`` the estimator's leave-one-block-out estimates on these folds
-    where they are at hand (the jackknife's, `torchjfa.pipeline.Estimate.theta_hat_jackknife`),
+    where they are at hand (the jackknife's, ``IdentificationResult.theta_hat_jackknife``),
     so that it is not refitted K more times; only when ``noise`` is given or the estimator
     learns none (a fold's learned ``noise_x_`` needs the refit)."""
     del parametrization

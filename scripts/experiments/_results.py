@@ -1,9 +1,9 @@
 """What the robot experiments return and how it reads: `RobotResult`, the paper's tables, the goal.
 
-`Identified` and `RobotResult` hold one robot's run of `torchjfa.experiments.robots.run_robot`;
+`Identified` and `RobotResult` hold one robot's run of `experiments.robots.run_robot`;
 `format_table` prints it in the paper's layout (Tables I and II), `goal_check` tests the issue's
 goal over the robots and `plot_tracking` draws the per-joint tracking errors. All of them are
-re-exported by `torchjfa.experiments.robots`; import them from there.
+re-exported by `experiments.robots`; import them from there.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..sim import ControlResult, PeriodNoise
+from torchjfa.sim import ControlResult, PeriodNoise
 
 __all__ = [
     "LABELS",

@@ -1,0 +1,131 @@
+"""The first two stages: `load_model` (the robot) and `read` (its raw log, checked)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .._joints import permutation
+from ..data import JointLog, LogError, check_log, read_log
+from ..dynamics import RigidBodyModel
+from ._options import DEFAULT_JOINT_TERMS, IdentificationError, Options, joint_terms
+
+__all__ = ["RawLog", "load_model", "read", "enough", "joint_limits"]
+
+
+def load_model(robot, friction: Sequence[str] | None = None) -> RigidBodyModel:
+    """The `RigidBodyModel` of ``robot``: the first stage.
+
+    Args:
+        robot: a URDF / MJCF path, a shipped robot's name (`torchjfa.robots.available`), a
+            simulated robot's name (`torchjfa.robots.SIMULATED`) or a `RigidBodyModel`
+            (returned as it is).
+        friction: the joint terms (`JOINT_TERMS`); None: `DEFAULT_JOINT_TERMS` for a file or
+            a name, the model's own for a `RigidBodyModel`.
+
+    Raises:
+        IdentificationError: on a missing file or one that does not give a model, or joint
+            terms that a `RigidBodyModel` given as it is does not have.
+    """
+    if isinstance(robot, RigidBodyModel):
+        if friction is not None and tuple(joint_terms(friction)) != tuple(robot.friction):
+            raise IdentificationError(
+                f"the model given has the joint terms {tuple(robot.friction)}, not "
+                f"{tuple(friction)}: build it with those terms, or leave friction at None"
+            )
+        return robot
+    from .. import robots
+
+    friction = DEFAULT_JOINT_TERMS if friction is None else joint_terms(friction)
+    robot = os.fspath(robot)
+    if robot in robots.SIMULATED:
+        path, fmt = robots.simulated_path(robot), "mjcf"
+    elif robot in robots.available():
+        path = robots.path(robot)
+        fmt = "urdf" if path.endswith(".urdf") else "mjcf"
+    else:
+        path = robot
+        if not os.path.isfile(path):
+            raise IdentificationError(
+                f"no robot file {path!r} (give a .urdf or MJCF .xml path, or one of "
+                f"{sorted(set(robots.available()) | set(robots.SIMULATED))})"
+            )
+        fmt = "urdf" if path.lower().endswith(".urdf") else "mjcf"
+    try:
+        if fmt == "urdf":
+            return RigidBodyModel.from_urdf(path, friction=tuple(friction))
+        return RigidBodyModel.from_mjcf(path, friction=tuple(friction))
+    except Exception as exc:  # the parsers raise many kinds; all mean "this file is not usable"
+        raise IdentificationError(
+            f"cannot build a robot model from {path!r}: {type(exc).__name__}: {exc}"
+        ) from None
+
+
+@dataclass
+class RawLog:
+    """What `read` returns.
+
+    Attributes:
+        log: the `JointLog` as recorded, its joints in the model's order.
+        warnings: what `torchjfa.data.check_log` found that does not stop identification.
+    """
+
+    log: JointLog
+    warnings: list[str] = field(default_factory=list)
+
+
+def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLog:
+    """Read a raw log (a CSV / NPZ / Parquet path, or a `JointLog`), put its joints in the
+    model's order and check it (`torchjfa.data.check_log` with the description's joint limits).
+
+    Raises:
+        IdentificationError: on a log too short for the model's parameters.
+        LogError: on a log that cannot be read or cannot identify anything (gaps, a robot
+            standing still, degrees, scrambled columns).
+    """
+    options = Options() if options is None else options
+    if isinstance(source, JointLog):
+        log = source
+    else:
+        log = read_log(
+            source,
+            columns=None if options.columns is None else dict(options.columns),
+            time_scale=options.time_scale,
+            drop_nan=options.drop_nan,
+        )
+    log = log.reorder(model.joint_names)
+    enough(log.n_samples, model, "the log has")
+    problems = check_log(log, limits=joint_limits(model))
+    fatal = [p.message for p in problems if p.fatal]
+    if fatal:
+        raise LogError(fatal[0])
+    if options.max_seconds is not None:  # the first seconds only
+        keep = int(torch.searchsorted(log.t, log.t[0] + options.max_seconds)) + 1
+        log = log.select(slice(0, min(keep, log.n_samples)))
+    return RawLog(log, [p.message for p in problems])
+
+
+def enough(n_samples: int, model: RigidBodyModel, where: str) -> None:
+    """At least as many equations (samples x joints) as parameters, else an error."""
+    rows = n_samples * model.n_dof
+    if rows < model.n_params:
+        raise IdentificationError(
+            f"{where} {n_samples} samples: with {model.n_dof} joints that is {rows} equations "
+            f"for {model.n_params} parameters; record a longer log"
+        )
+
+
+def joint_limits(model: RigidBodyModel) -> np.ndarray | None:
+    """``(n_dof, 2)`` position limits of the description in the model's joint order, or None."""
+    if model.chain is None:
+        return None
+    lo, hi = model.chain.get_joint_limits()
+    order = list(model.chain.get_joint_parameter_names())
+    if sorted(order) != sorted(model.joint_names):
+        return None
+    lim = np.stack([np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)], axis=1)
+    return lim[permutation(order, model.joint_names, have_name="the description's limits")]
