@@ -80,10 +80,10 @@ def _time(fn, repeat: int = 1) -> tuple[float, object]:
 
 
 def per_iteration(moments: Moments, n_iter: int) -> float:
-    """Seconds per plain VB iteration of BayesianJFA fitted from ``moments``."""
-    est = estimators.BayesianJFA(max_iter=n_iter, tol=0.0, coef_tol=0.0, accelerate=False)
+    """Seconds per plain EM sweep of BayesianJFA fitted from ``moments``."""
+    est = estimators.BayesianJFA(max_iter=n_iter, tol=0.0, coef_tol=0.0, method="em")
     t, est = _time(lambda: est.fit_moments(moments))
-    return t / est.n_estep_
+    return t / est.n_iter_
 
 
 def run(
@@ -137,13 +137,11 @@ def _bench_one(n, d, available, n_small, n_large, iter_probe, repeat, seed) -> d
         extra = ""
         if hasattr(est, "n_iter_"):
             extra = f"  ({est.n_iter_} iterations"
-            if hasattr(est, "n_estep_"):
-                extra += f", {est.n_estep_} E-step equivalents, converged {est.converged_}"
-                extra += f", stop: {est.stop_reason_}"
+            if hasattr(est, "stop_reason_"):
+                extra += f", converged {est.converged_}, stop: {est.stop_reason_}"
             extra += ")"
         if name == "BayesianJFA":
-            row["bjfa_iter"], row["bjfa_estep"] = est.n_iter_, est.n_estep_
-            row["bjfa_stop"] = est.stop_reason_
+            row["bjfa_iter"], row["bjfa_stop"] = est.n_iter_, est.stop_reason_
         print(f"  fit {name:30s} {t:8.3f} s  {t / row['lstsq']:6.2f}x lstsq{extra}")
     # the noise-informed variant (the input noise each column carries, as the repeated periods
     # of a robot's excitation give it): the seed's estimator with psi_x known and held fixed
@@ -152,20 +150,20 @@ def _bench_one(n, d, available, n_small, n_large, iter_probe, repeat, seed) -> d
     row["bjfa_noise"] = t
     print(
         f"  fit {'BayesianJFA(input_noise=known)':30s} {t:8.3f} s  {t / row['lstsq']:6.2f}x lstsq"
-        f"  ({est.n_iter_} iterations, {est.n_estep_} E-steps, stop: {est.stop_reason_})"
+        f"  ({est.n_iter_} iterations, stop: {est.stop_reason_})"
     )
     row["fits"] = fits
     # the iteration cost from moments must not depend on N
     small = Moments.from_chunks(make_data(n_small, d, seed=seed + 1))
     large = Moments.from_chunks(make_data(n_large, d, seed=seed + 2))
     row["iter_small"] = per_iteration(small, iter_probe)
-    for acc in (False, True):  # plain EM against the Newton optimiser: same moments, defaults
-        t, e = _time(lambda a=acc: estimators.BayesianJFA(accelerate=a).fit_moments(small))
+    for method in ("em", "newton"):  # plain EM against the Newton optimiser: same moments
+        t, e = _time(lambda m=method: estimators.BayesianJFA(method=m).fit_moments(small))
         print(
-            f"  BayesianJFA N = {n_small:,}, {'Newton' if acc else 'plain EM'}: {t:6.2f} s "
-            f"= {t / row['iter_small']:.0f} E-steps of time, {e.n_iter_} iterations, "
-            f"{e.n_estep_} E-step equivalents counted, converged {e.converged_}, "
-            f"stop: {e.stop_reason_}, bound {float(e.lower_bound_[-1]):.6g}"
+            f"  BayesianJFA N = {n_small:,}, {method}: {t:6.2f} s "
+            f"= {t / row['iter_small']:.0f} EM sweeps of time, {e.n_iter_} iterations, "
+            f"converged {e.converged_}, stop: {e.stop_reason_}, bound "
+            f"{float(e.lower_bound_[-1]):.6g}"
         )
     row["iter_large"] = per_iteration(large, iter_probe)
     print(
@@ -183,7 +181,7 @@ def _bench_one(n, d, available, n_small, n_large, iter_probe, repeat, seed) -> d
         print(
             f"  BayesianJFA fit / X^T X pass = {r2:.2f} (target <= 3: "
             f"{'met' if r2 <= 3.0 else 'NOT met'}); {row['bjfa_iter']} iterations, "
-            f"{row['bjfa_estep']} E-steps, stopped by {row['bjfa_stop']}"
+            f"stopped by {row['bjfa_stop']}"
         )
     r1, r2 = row["bjfa_noise"] / row["lstsq"], row["bjfa_noise"] / row["xtx"]
     print(
@@ -233,9 +231,9 @@ def batched_against_single(
         f"{t_batch:.2f} s, {n_problems} fit_moments calls {t_single:.2f} s, ratio {ratio:.3f} "
         f"(target <= 1/8 = 0.125: {'met' if ratio <= 0.125 else 'NOT met'}); "
         f"{conv} of {n_problems} converged, iterations {min(iters)} to {max(iters)}; "
-        f"E-step equivalents of the single fits: mean "
-        f"{sum(s.n_estep_ for s in singles) / n_problems:.0f}, worst "
-        f"{max(s.n_estep_ for s in singles)}; batch vs single: "
+        f"iterations of the single fits: mean "
+        f"{sum(s.n_iter_ for s in singles) / n_problems:.0f}, worst "
+        f"{max(s.n_iter_ for s in singles)}; batch vs single: "
         f"{n_problems - len(apart)} of {n_problems} agree to 1e-10 relative in coef_"
         + (
             f", the others end at other optima (bound batch - single: "

@@ -11,12 +11,12 @@ whose peak resident memory (``ru_maxrss``) is reported:
   that reads the data;
 - ``bjfa``: the streaming Bayesian JFA path of `torchjfa.pipeline`: `Moments.update` per chunk,
   then ``BayesianJFA(fit_intercept=False).fit_moments`` (the Newton optimiser; time per
-  E-step equivalent = fit time / ``n_estep_``); the once-per-process warm-up (a first fit
-  before the timed one) is printed apart and not counted;
+  iteration = fit time / ``n_iter_``); the once-per-process warm-up (a first fit before the
+  timed one) is printed apart and not counted;
 - ``idle``: a process that only imports torch and torchjfa (the memory floor).
 
 Times exclude generating the rows (measured and subtracted per chunk). Prints the ratios
-``bjfa end to end / lstsq``, ``bjfa / xtx pass`` and the EM time per iteration at each N, and
+``bjfa end to end / lstsq``, ``bjfa / xtx pass`` and the fit's time per iteration at each N, and
 saves a log-log plot. Usage::
 
     python scripts/bench_scale.py            # 10^4 .. 10^7 rows, a few minutes
@@ -102,11 +102,10 @@ def measure(method: str, n: int, *, d: int = D, chunk: int = 65_536, seed: int =
         est = BayesianJFA(fit_intercept=False).fit_moments(m)
         out["fit_seconds"] = time.perf_counter() - t1
         out["n_iter"] = int(est.n_iter_)
-        out["n_estep"] = int(getattr(est, "n_estep_", est.n_iter_))
         out["stop_reason"] = str(getattr(est, "stop_reason_", "?"))
         out["converged"] = bool(getattr(est, "converged_", False))
         out["seconds"] = out["pass_seconds"] + out["fit_seconds"]
-        out["seconds_per_iter"] = out["fit_seconds"] / max(out["n_estep"], 1)
+        out["seconds_per_iter"] = out["fit_seconds"] / max(out["n_iter"], 1)
     elif method != "idle":
         raise ValueError(f"unknown method {method!r}")
     out["peak_mb"] = _peak_mb()
@@ -185,12 +184,12 @@ def _print_row(row: dict) -> None:
     ratio_ls = f"{b['seconds'] / ls['seconds']:7.3f}" if ls else f"{'-':>7}"
     print(
         f"N={row['n']:>9,d} | {ls_txt}xtx pass {x['seconds']:7.3f} s | bjfa pass "
-        f"{b['pass_seconds']:7.3f} s + fit {b['fit_seconds']:6.3f} s ({b['n_estep']} E-step "
-        f"eq., {b['n_iter']} it., converged {b['converged']}, "
+        f"{b['pass_seconds']:7.3f} s + fit {b['fit_seconds']:6.3f} s ({b['n_iter']} it., "
+        f"converged {b['converged']}, "
         f"{b['stop_reason']}), {b['peak_mb']:6.0f} MB | bjfa/lstsq {ratio_ls} | "
         f"bjfa/xtx {b['seconds'] / x['seconds']:6.2f} | "
-        f"EM {1e6 * b['seconds_per_iter']:6.1f} us/iter | "
-        f"EM loop load {b['load_seconds']:.2f} s (once per process, not counted)"
+        f"fit {1e6 * b['seconds_per_iter']:6.1f} us/iter | "
+        f"fit load {b['load_seconds']:.2f} s (once per process, not counted)"
     )
 
 
@@ -209,7 +208,7 @@ def _plot(rows: list[dict], path: str) -> None:
     series = {
         "one pass X^T X": [r["xtx"]["seconds"] for r in rows],
         "BJFA pass (Moments)": [r["bjfa"]["pass_seconds"] for r in rows],
-        "BJFA fit (EM)": [r["bjfa"]["fit_seconds"] for r in rows],
+        "BJFA fit": [r["bjfa"]["fit_seconds"] for r in rows],
         "BJFA end to end": [r["bjfa"]["seconds"] for r in rows],
     }
     for label, ys in series.items():

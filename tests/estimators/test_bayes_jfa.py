@@ -161,7 +161,7 @@ def test_matches_per_sample_reference(ard):
     X, y, _ = _model_data(40, 4, seed=3, psx=0.3)
     y = y + 6.0 * torch.randn(40, generator=torch.Generator().manual_seed(4), dtype=F64)
     n_iter = 4
-    kw = dict(max_iter=n_iter, tol=0.0, coef_tol=0.0, accelerate=False, ard=ard)
+    kw = dict(max_iter=n_iter, tol=0.0, coef_tol=0.0, method="em", ard=ard)
     est = BayesianJFA(**kw).fit(X, y)
     ref = _reference(X, y, n_iter, ard=ard)
     assert est.n_iter_ == n_iter and est.stop_reason_ == "max_iter" and not est.converged_
@@ -174,8 +174,8 @@ def test_matches_per_sample_reference(ard):
 @pytest.mark.parametrize(
     "kind", ["plain", "ill", "redundant", "model", "known_noise", "known_noise_output_ard"]
 )
-@pytest.mark.parametrize("accelerate", [False, True])
-def test_bound_never_decreases(kind, accelerate):
+@pytest.mark.parametrize("method", ["em", "newton"])
+def test_bound_never_decreases(kind, method):
     noise = None
     if kind.startswith(("model", "known_noise")):
         X, y, _ = _model_data(400, 6, seed=1, n_irrelevant=2)
@@ -186,7 +186,7 @@ def test_bound_never_decreases(kind, accelerate):
         max_iter=1500,
         tol=0.0,
         coef_tol=0.0,
-        accelerate=accelerate,
+        method=method,
         input_noise=noise,
         ard="output" if kind.endswith("output_ard") else "shared",
     ).fit(X, y)
@@ -245,7 +245,7 @@ def test_known_input_noise_recovers_true_coefficients():
 def test_chunks_equal_whole():
     X, y, _ = _model_data(300, 5, seed=7, n_irrelevant=1)
     # plain EM for a fixed number of sweeps: the same path, step for step
-    kw = dict(max_iter=100, tol=0.0, coef_tol=0.0, accelerate=False)
+    kw = dict(max_iter=100, tol=0.0, coef_tol=0.0, method="em")
     whole = BayesianJFA(**kw).fit(X, y)
     chunks = [Moments.from_data(X[a : a + 70], y[a : a + 70]) for a in range(0, 300, 70)]
     for other in (
@@ -294,20 +294,15 @@ def test_float32_input_and_progress_bar():
     torch.testing.assert_close(e32.coef_, e64.coef_, rtol=1e-3, atol=1e-4)
 
 
-@pytest.mark.parametrize("accelerate", [False, True])
-def test_progress_bar_blocks_do_not_change_the_path(monkeypatch, accelerate):
-    # with a bar, the compiled loop runs in blocks and resumes; the path must be the same
-    import torchjfa.estimators._jfa as jfa_module
-
+@pytest.mark.parametrize("method", ["em", "newton"])
+def test_progress_bar_does_not_change_the_path(method):
     X, y, _ = _model_data(300, 5, seed=11, n_irrelevant=2)
-    kw = dict(max_iter=700, tol=0.0, coef_tol=0.0, accelerate=accelerate)
+    kw = dict(max_iter=700, tol=0.0, coef_tol=0.0, method=method)
     whole = BayesianJFA(**kw).fit(X, y)
-    monkeypatch.setattr(jfa_module, "_BAR_BLOCK", 37)
-    blocks = BayesianJFA(verbose=True, **kw).fit(X, y)
-    assert blocks.n_iter_ == whole.n_iter_ == 700
-    assert blocks.n_accelerated_ == whole.n_accelerated_ and blocks.n_estep_ == whole.n_estep_
-    assert torch.equal(blocks.lower_bound_, whole.lower_bound_)
-    assert torch.equal(blocks.coef_, whole.coef_)
+    shown = BayesianJFA(verbose=True, **kw).fit(X, y)
+    assert shown.n_iter_ == whole.n_iter_ == 700
+    assert torch.equal(shown.lower_bound_, whole.lower_bound_)
+    assert torch.equal(shown.coef_, whole.coef_)
 
 
 def test_bad_input_raises():
@@ -337,6 +332,8 @@ def test_bad_input_raises():
         BayesianJFA(input_noise=[0.1, float("nan"), 0.1]).fit(X, y)
     with pytest.raises(ValueError, match="a0"):
         BayesianJFA(a0=0.0).fit(X, y)
+    with pytest.raises(ValueError, match="method must be one of 'newton', 'em'"):
+        BayesianJFA(method="closed_form").fit(X, y)
     with pytest.raises(ValueError, match="tol"):
         BayesianJFA(tol=-1.0).fit(X, y)
     with pytest.raises(ValueError, match="y is constant"):

@@ -1,6 +1,6 @@
 """Joint factor analysis regression with input noise: maximum likelihood (`JFA`) and Bayesian.
 
-The model of the seed paper (Ting, Mistry, Peters, Schaal, Nakanishi, "A Bayesian approach to
+The model of the paper (Ting, Mistry, Peters, Schaal, Nakanishi, "A Bayesian approach to
 nonlinear parameter identification for rigid body dynamics", RSS 2006), Fig. 1(b)/(c): every
 input ``x_m`` is a noisy view ``w_xm t_m + noise`` of a hidden noiseless input ``t_m``, the
 output is ``y = sum_m z_m + noise`` with ``z_m = w_zm t_m + noise``. Use these estimators when
@@ -8,16 +8,15 @@ the regressors themselves are noisy (joint velocities and accelerations of a rob
 also prunes irrelevant and redundant inputs (automatic relevance determination).
 
 Both are fitted from the sufficient statistics ``N, X^T X, X^T y, y^T y`` alone, as batched
-torch tensor ops (``_jfa_fit.py``, ``_jfa_bound.py``): `JFA` at the closed-form maximum of its
-likelihood, `BayesianJFA` by a monotone Newton optimiser of the variational bound with prune
-moves, which converges in tens of iterations where the plain EM of ``docs/bayesian-jfa.md``
-(``accelerate=False``, kept as the reference) needs thousands. After the single pass that forms
-the statistics, nothing depends on ``N``.
+tensor ops: `JFA` at the closed-form maximum of its likelihood, `BayesianJFA` by Newton steps on
+its variational bound with prune moves, which converge in tens to hundreds of iterations where
+the plain EM (``method="em"``, kept as the reference) needs thousands. ``docs/bayesian-jfa.md``
+derives the model, the bound, the updates and the optimiser; the code cites its equations.
 
-Known limit (see the note): the de-noised slope ``w_z / w_x`` (eq. 4) is not identified from
-second moments; the prior (or the starting point, for `JFA`) picks it. Pass ``input_noise``
-(a known or estimated noise variance per input, e.g. from repeated excitation periods) to hold
-``psi_x`` fixed and make eq. (4) identified.
+Known limit (``docs/bayesian-jfa.md``, "What the data do not decide"): the de-noised slope
+``w_z / w_x`` is not identified from second moments; the prior (or the starting point, for
+`JFA`) picks it. Pass ``input_noise`` (a known or estimated noise variance per input, e.g. from
+repeated excitation periods) to hold ``psi_x`` fixed and make it identified.
 """
 
 from __future__ import annotations
@@ -25,43 +24,24 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import torch
 
 from .._progress import progress_bar
 from .._validation import as_tensor, check_finite, check_X
 from ..stats import Moments, as_folds
-from . import _jfa_bound as jb
 from . import _jfa_fit
+from . import _jfa_model as jm
 from ._base import LinearEstimator
+from ._jfa_em import REASONS, Result
 
 __all__ = ["JFA", "BayesianJFA"]
 
-_BAR_BLOCK = 50  # iterations between refreshes of the progress bar
 # ard="output": the fixed prior precision of w_x in standardised units (the data pin w_x^2 to
 # var(x) - psi_x once psi_x is known; this only keeps the prior proper)
 _OUTPUT_ARD_WX_PRECISION = 1e-8
 _ROUNDOFF_RMS = 1e-10
-
-
-class _Bar:
-    """A progress bar refreshed every `_BAR_BLOCK` iterations (the fit calls ``update(1)``)."""
-
-    def __init__(self, bar) -> None:
-        self.bar, self.pending = bar, 0
-
-    def update(self, k: int) -> None:
-        self.pending += k
-        if self.pending >= _BAR_BLOCK:
-            self.flush()
-
-    def set_postfix(self, **kw) -> None:
-        if self.pending == 0:
-            self.bar.set_postfix(**kw)
-
-    def flush(self) -> None:
-        self.bar.update(self.pending)
-        self.pending = 0
 
 
 def _check_noise_below_variance(noise, active, variance, centred: bool) -> None:
@@ -90,9 +70,9 @@ def _check_noise_below_variance(noise, active, variance, centred: bool) -> None:
 
 
 class _JFABase(LinearEstimator):
-    """The shared fitting loop; see `JFA` and `BayesianJFA`."""
+    """The shared fitting code; see `JFA` and `BayesianJFA`."""
 
-    _bayes = False
+    _methods: tuple[str, ...] = ()
 
     def __init__(
         self,
@@ -103,7 +83,7 @@ class _JFABase(LinearEstimator):
         input_noise=None,
         noise_floor: float,
         noise_y_floor: float,
-        accelerate: bool,
+        method: str,
         fit_intercept: bool,
         verbose: bool,
     ) -> None:
@@ -114,7 +94,7 @@ class _JFABase(LinearEstimator):
         self.input_noise = input_noise
         self.noise_floor = noise_floor
         self.noise_y_floor = noise_y_floor
-        self.accelerate = accelerate
+        self.method = method
         self.verbose = verbose
 
     # ------------------------------------------------------------------ public API
@@ -133,25 +113,25 @@ class _JFABase(LinearEstimator):
         """Fit one copy of this estimator to each of several problems, in one batched call.
 
         The problems' standardised statistics are stacked, ``(B, d, d)``, and fitted together
-        by the same tensor ops as `fit_moments` (the jackknife's blocks, cross-validation
-        folds, the joints of a robot, the trials of an experiment): problem by problem the
-        result is `fit_moments`'s, to round-off (the ops are batched, not changed), in a
-        fraction of the time of separate calls, whose cost is mostly per-operation overhead.
-        The Newton optimiser rounds a problem in a batch as it rounds it alone (its products are
-        row sums, `_jfa_bound.matvec`, and each problem's dense system has an order of its own,
-        `_jfa_newton._order`), so even on large problems with redundant inputs, whose bound has
-        several optima, a batch ends each problem where its single fit does
-        (``scripts/bench_estimators.py`` prints how many agree: all 64, at d = 77 and 110).
-        Problems whose active columns differ (a column constant in one of them) are fitted in
-        separate batches.
+        by the tensor ops of `fit_moments` (the jackknife's refits, cross-validation folds, the
+        trials of an experiment), in a fraction of the time of separate calls, whose cost is
+        mostly per-operation overhead. Problem by problem the result is `fit_moments`'s up to
+        round-off where the bound has one optimum (small and well-conditioned problems;
+        maximum likelihood; plain EM for a fixed number of sweeps). Where it has several (large
+        problems with redundant inputs, ``docs/bayesian-jfa.md``, "Batches and optima"), a
+        rounding difference between a batched and a single product can send a problem to
+        another optimum, of a bound a few nats higher or lower, and ``coef_`` differs there
+        (``scripts/bench_estimators.py`` prints how many of its 64 problems agree). Problems
+        whose active columns differ (a column constant in one of them) are fitted in separate
+        batches.
 
         Args:
             problems: a sequence of `Moments` (or of fold `Moments`, summed), all with the
                 same number of features.
 
         Returns:
-            A list of fitted copies of ``self`` (same hyper-parameters, ``verbose`` kept), in
-            the order of ``problems``; ``self`` is not modified.
+            A list of fitted copies of ``self`` (same hyper-parameters), in the order of
+            ``problems``; ``self`` is not modified.
         """
         problems = list(problems)
         if not problems:
@@ -167,15 +147,14 @@ class _JFABase(LinearEstimator):
             groups.setdefault(tuple(prep[2].tolist()), []).append(i)
         fitted: list = [None] * len(problems)
         for members in groups.values():
-            S = jb.Stats(
-                *(torch.stack(t) for t in zip(*(preps[i][0] for i in members), strict=True))
-            )
+            stats = (preps[i][0] for i in members)
+            S = jm.Stats(*(torch.stack(t) for t in zip(*stats, strict=True)))
             fixed = [preps[i][1] for i in members]
-            psx = None if fixed[0] is None else torch.stack(fixed)
-            res = self._run(S, psx)
+            res = self._run(S, None if fixed[0] is None else torch.stack(fixed))
             for j, i in enumerate(members):
+                one = Result(jm.State(*(t[j] for t in res.state)), *(t[j] for t in res[1:]))
                 est = copy.deepcopy(self)
-                est._store(_jfa_fit.Result(*(t[j] for t in res)), *preps[i][2:])
+                est._store(one, *preps[i][2:])
                 fitted[i] = est
         return fitted
 
@@ -187,8 +166,7 @@ class _JFABase(LinearEstimator):
             raise ValueError("cannot fit on Moments with no samples (total weight 0)")
         d = total.n_features
         self._check_params(d)
-        dev = total.xtx.device
-        noise = self._input_noise(d, dev)
+        noise = self._input_noise(d, total.xtx.device)
         active = self._active_columns(total)
         self._warn_if_underdetermined(total, active)
         m = total.select(active)
@@ -199,7 +177,7 @@ class _JFABase(LinearEstimator):
             raise ValueError("y is constant (zero variance); there is nothing to regress")
         if noise is not None:
             _check_noise_below_variance(noise, active, sx * sx, self.fit_intercept)
-        S = jb.Stats(sxx / torch.outer(sx, sx), sxy / (sx * sy), syy / (sy * sy), n)
+        S = jm.Stats(sxx / torch.outer(sx, sx), sxy / (sx * sy), syy / (sy * sy), n)
         psx_fixed = None if noise is None else noise[active] / (sx * sx)
         return S, psx_fixed, active, sx, sy, m, total
 
@@ -209,8 +187,8 @@ class _JFABase(LinearEstimator):
         Args:
             X: inputs, shape ``(n, d)``.
             noiseless: ``False`` (default) for noisy inputs, measured like the training inputs:
-                ``X coef_noisy_ + intercept_noisy_`` (eq. 3, ``E[y | x]``). ``True`` for
-                noiseless inputs: ``X coef_ + intercept_`` (eq. 4).
+                ``X coef_noisy_ + intercept_noisy_`` (the paper's eq. 3, ``E[y | x]``). ``True``
+                for noiseless inputs: ``X coef_ + intercept_`` (the paper's eq. 4).
         """
         self._check_fitted()
         X = check_X(X, n_features=self.n_features_in_)
@@ -233,6 +211,10 @@ class _JFABase(LinearEstimator):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and 0 < v < 1):
                 raise ValueError(f"{name} must be in (0, 1), got {v!r}")
+        if self.method not in self._methods:
+            raise ValueError(
+                f"method must be one of {', '.join(map(repr, self._methods))}, got {self.method!r}"
+            )
 
     def _input_noise(self, d: int, device) -> torch.Tensor | None:
         if self.input_noise is None:
@@ -251,63 +233,58 @@ class _JFABase(LinearEstimator):
             )
         return v
 
-    def _hyper(self, fixed_x: bool) -> jb.Hyper:
-        floors = (float(self.noise_floor), fixed_x, float(self.noise_y_floor))
-        return jb.Hyper(False, 0.0, 0.0, *floors, -1.0)
+    def _settings(self) -> jm.Settings:
+        return jm.Settings(
+            bayes=False,
+            noise_floor=float(self.noise_floor),
+            noise_y_floor=float(self.noise_y_floor),
+            fixed_x=self.input_noise is not None,
+        )
 
-    def _method(self) -> str:
-        return "closed" if self.accelerate else "em"
-
-    def _run(self, S: jb.Stats, psx_fixed: torch.Tensor | None) -> _jfa_fit.Result:
+    def _run(self, S: jm.Stats, psx_fixed: torch.Tensor | None) -> Result:
         """The fit (``_jfa_fit.fit``) of the standardised moments, with a progress bar."""
-        hp = self._hyper(psx_fixed is not None)
+        cfg = replace(self._settings(), fixed_x=psx_fixed is not None)
         bar = progress_bar(total=int(self.max_iter), desc=type(self).__name__, enabled=self.verbose)
         with bar:
-            tick = _Bar(bar) if self.verbose else None
             res = _jfa_fit.fit(
                 S,
                 psx_fixed,
-                hp,
-                method=self._method(),
+                cfg,
+                method=self.method,
                 max_iter=int(self.max_iter),
                 tol=float(self.tol),
                 coef_tol=float(self.coef_tol),
-                bar=tick,
+                bar=bar if self.verbose else None,
             )
-            if tick is not None:
-                tick.flush()
+            if self.verbose:
                 bar.total = bar.n  # converged before the cap: the bar ends full
                 bar.refresh()
         return res
 
-    def _store(self, res: _jfa_fit.Result, active, sx, sy, m: Moments, total: Moments) -> None:
+    def _store(self, res: Result, active, sx, sy, m: Moments, total: Moments) -> None:
         """Map the standardised solution back to the caller's units, zeros for constant columns."""
         d = total.n_features
         kw = {"dtype": torch.float64, "device": total.xtx.device}
-        hp = self._hyper(False)
-        st = res.st
-        mz, mx, vz, vx, b, psz, psx = st.unbind(-2)
-        k = jb.predictor(st)
-        coef = _jfa_fit.coef(st, hp)
+        cfg = self._settings()
+        st = res.state
         n_iter = int(res.n_iter)
-        hist = res.history[:n_iter]
 
         def full(v, fill=0.0):
             out = torch.full((d,), fill, **kw)
             out[active] = v
             return out
 
-        self.coef_ = full(coef * sy / sx)
-        self.coef_noisy_ = full(k * sy / sx)
-        self.noise_x_ = full(psx * sx * sx)
-        self.noise_z_ = full(psz * sy * sy)
-        self.noise_y_ = res.psy * sy * sy  # 0-d tensor
-        self.weights_z_ = full(mz * sy)  # <w_z> in y's units per unit-variance t
-        self.weights_x_ = full(mx * sx)
-        if hp.bayes:
-            self.relevance_ = full(hp.a / b, math.inf)
+        self.coef_ = full(jm.coef(st, cfg) * sy / sx)
+        self.coef_noisy_ = full(jm.predictor(st) * sy / sx)
+        self.noise_x_ = full(st.psx * sx * sx)
+        self.noise_z_ = full(st.psz * sy * sy)
+        self.noise_y_ = st.psy * sy * sy  # 0-d tensor
+        self.weights_z_ = full(st.mz * sy)  # <w_z> in y's units per unit-variance t
+        self.weights_x_ = full(st.mx * sx)
+        if cfg.bayes:
+            self.relevance_ = full(cfg.shape / st.rate, math.inf)
             # first-order spread of w_z / w_x under the factorised posterior Q(w_z) Q(w_x)
-            var = (vz + (mz / mx) ** 2 * vx) / (mx * mx)
+            var = (st.vz + (st.mz / st.mx) ** 2 * st.vx) / (st.mx * st.mx)
             self.coef_std_ = full(torch.sqrt(var) * sy / sx)
         self.n_features_in_ = d
         self.active_ = active
@@ -319,22 +296,21 @@ class _JFABase(LinearEstimator):
             self.intercept_noisy_ = torch.zeros((), **kw)
         # the bound on log p(X, y) in the caller's units: the change of variables adds -N log|J|
         jac = m.n * (torch.log(sx).sum() + torch.log(sy))
-        self.lower_bound_ = hist - jac
+        self.lower_bound_ = res.history[:n_iter] - jac
         self.n_iter_ = n_iter
-        self.stop_reason_ = _jfa_fit.REASONS[int(res.reason)]
+        self.stop_reason_ = REASONS[int(res.reason)]
         self.converged_ = self.stop_reason_ != "max_iter"
-        self.n_accelerated_ = int(res.n_accepted)
-        self.n_estep_ = int(res.n_estep)
 
 
 class JFA(_JFABase):
-    """Probabilistic joint factor analysis regression by maximum-likelihood EM (Fig. 1(b)).
+    """Probabilistic joint factor analysis regression by maximum likelihood (Fig. 1(b)).
 
     The model of `BayesianJFA` without the priors: ``w_z``, ``w_x`` and the noise variances are
     point estimates. Prefer `BayesianJFA` on ill-conditioned or redundant inputs.
 
     Args:
-        max_iter: iteration cap of the plain EM path (``accelerate=False``).
+        max_iter: iteration cap of plain EM (``method="em"``, or where the closed form cannot
+            be reached).
         tol: EM stops when the log-likelihood changes by at most ``tol * max(|L|, N)``.
         coef_tol: EM stops when ``||delta coef|| <= coef_tol ||coef||`` (standardised units).
         input_noise: optional known noise variance per input, shape ``(d,)``, caller's units
@@ -343,13 +319,13 @@ class JFA(_JFABase):
         noise_floor: lower bound of psi_x and psi_z, as a fraction of the variance of x_m / y.
         noise_y_floor: lower bound of psi_y, as a fraction of var(y) (the likelihood is flat
             along ``psi_y + sum psi_z``).
-        accelerate: ``True`` (default): the closed-form maximum of the likelihood (each
-            input's variance ``diag(X^T X) / N``, the predictor ``k`` = OLS, the residual
-            variance ``RSS / N``; ``docs/bayesian-jfa-fitting.md``), at the point of the flat
-            ridge of equally likely states where psi_x is the given noise or half of each
-            column's variance; plain EM where the floors or the given noise make that optimum
-            unreachable. ``False``: plain EM from the initialisation of the note (the ridge
-            point EM drifts to).
+        method: ``"closed_form"`` (default): the maximum of the likelihood (each input's
+            variance ``diag(X^T X) / N``, the predictor ``k`` = OLS, the residual variance
+            ``RSS / N``; ``docs/bayesian-jfa.md``, eq. 19), at the point of the flat ridge of
+            equally likely states where psi_x is the given noise or half of each column's
+            variance; plain EM where the floors or the given noise make that optimum
+            unreachable. ``"em"``: plain EM from the initialisation of eq. 10 (the ridge point
+            EM drifts to).
         fit_intercept: centre ``X`` and ``y`` (inputs are always scaled to unit variance).
         verbose: show a progress bar.
 
@@ -363,8 +339,9 @@ class JFA(_JFABase):
         lower_bound_: ``(n_iter_,)`` the log-likelihood of (X, y) after each iteration, nats
             (closed form: after the first EM sweep from the initialisation, and at the optimum).
         n_iter_, converged_, stop_reason_ (``"bound"``, ``"coef"`` or ``"max_iter"``).
-        n_accelerated_: 0 (kept for the common interface); n_estep_: E-steps computed.
     """
+
+    _methods = ("closed_form", "em")
 
     def __init__(
         self,
@@ -375,7 +352,7 @@ class JFA(_JFABase):
         input_noise=None,
         noise_floor: float = 1e-6,
         noise_y_floor: float = 1e-6,
-        accelerate: bool = True,
+        method: str = "closed_form",
         fit_intercept: bool = True,
         verbose: bool = False,
     ) -> None:
@@ -386,45 +363,45 @@ class JFA(_JFABase):
             input_noise=input_noise,
             noise_floor=noise_floor,
             noise_y_floor=noise_y_floor,
-            accelerate=accelerate,
+            method=method,
             fit_intercept=fit_intercept,
             verbose=verbose,
         )
 
 
 class BayesianJFA(_JFABase):
-    """Bayesian joint factor analysis regression by variational EM (the seed paper, Fig. 1(c)).
+    """Bayesian joint factor analysis regression by variational Bayes (the paper, Fig. 1(c)).
 
     ``w_zm`` and ``w_xm`` share a precision ``alpha_m ~ Gamma(a0, b0)`` (or, with
     ``ard="output"``, it governs ``w_zm`` alone): an input that does not explain the output is
     pruned (``alpha_m`` large, both weights near 0), which regularises
-    ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only, by a monotone
-    Newton optimiser of the bound of ``docs/bayesian-jfa.md`` (``_jfa_fit.run_newton``).
+    ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only, by Newton
+    steps with prune moves on the variational bound (``docs/bayesian-jfa.md``, eqs. 12-18).
 
     Args:
         max_iter: iteration cap (one iteration = one Newton or prune trial, or one plain EM
-            sweep with ``accelerate=False``). The Newton optimiser converges in tens to a few
-            hundred iterations (``docs/benchmarks.md``); plain EM needs thousands, often more
-            than any cap.
+            sweep with ``method="em"``). The Newton optimiser converges in tens to a few
+            hundred iterations (``scripts/bench_estimators.py`` prints them); plain EM needs
+            thousands, often more than any cap.
         tol: the Newton optimiser has converged when a kept step changes the lower bound by
-            at most ``tol * max(|L|, N)`` and no parameter by more than ``coef_tol`` (checked
-            once more with the damping at its floor), or when its steps' gains stay below the
-            bound's round-off; it stops when then no prune move gains. Plain
-            EM stops when the bound changes by at most ``tol * max(|L|, N)`` in a sweep.
-            With ``tol = coef_tol = 0`` both run ``max_iter`` iterations.
+            at most ``tol * max(|L|, N)`` and no coordinate by more than ``coef_tol`` (checked
+            once more with the damping at its floor), or when its step's gain is below the
+            bound's round-off; it stops when then no prune move gains (eq. 16). Plain EM stops
+            when the bound changes by at most ``tol * max(|L|, N)`` in a sweep. With ``tol =
+            coef_tol = 0`` both run ``max_iter`` iterations.
         coef_tol: the largest change of a parameter in a converged Newton step (posterior means
             in standardised units, logs of the variances). Plain EM stops when
             ``||delta coef_|| <= coef_tol ||coef_||`` (standardised units). Plain EM's
-            rate along the unidentified direction of eq. (4) is ``1 - O(1/N)``
-            (``docs/bayesian-jfa-fitting.md``), so its answer moves with the iteration count
-            and the chunking of the data; the Newton optimiser's converges quadratically and
-            agrees whatever the chunking, to round-off, unless round-off early in the path
-            led to another optimum of the bound (seen on large redundant problems).
-        a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (the note: 1e-8).
+            rate along the unidentified direction of the paper's eq. (4) is ``1 - O(1/N)``,
+            so its answer moves with the iteration count and the chunking of the data; the
+            Newton optimiser's converges quadratically and agrees whatever the chunking, to
+            round-off, unless round-off early in the path led to another optimum of the bound
+            (``docs/bayesian-jfa.md``, "Batches and optima").
+        a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
             caller's units (squared units of each column), e.g. half the variance of the
             difference between two repeated excitation periods. ``psi_x`` is then held fixed
-            at it, which makes eq. (4) identified. Zeros are allowed (exact columns) and are
+            at it, which makes the paper's eq. (4) identified. Zeros are allowed (exact columns) and are
             raised to the noise floor; a noise at or above a column's variance is refused
             (``ValueError`` naming the columns).
         ard: which loadings the relevance precision ``alpha_m`` governs. ``"shared"`` (the
@@ -443,14 +420,15 @@ class BayesianJFA(_JFABase):
             with it by O(psi_y) (measured: 3e-4 relative between 1e-3 and the limit), while
             reaching a smaller floor takes many more iterations. Must be well below
             ``1 - R^2`` of the data.
-        accelerate: ``True`` (default): the Newton optimiser; ``False``: plain variational EM
-            sweeps (the note's updates, the reference). Both keep the bound monotone.
+        method: ``"newton"`` (default): the Newton optimiser; ``"em"``: plain variational EM
+            sweeps (eqs. 3-8, the reference). Both keep the bound monotone.
         fit_intercept: centre ``X`` and ``y`` (inputs and output are always scaled to unit
             variance inside; results are mapped back).
         verbose: show a progress bar.
 
     Attributes:
-        coef_: ``(d,)`` the noiseless-input estimate of eq. (4), ``<w_z><w_x>/<w_x^2>``, for
+        coef_: ``(d,)`` the noiseless-input estimate of the paper's eq. (4), ``<w_z><w_x> /
+            <w_x^2>`` (``docs/bayesian-jfa.md``, eq. 11), for
             system identification; 0 for pruned and for constant columns. It is close to
             ``coef_noisy_ / (1 - noise_x_ / var(x))``: the predictor de-noised column by column
             by the reliability the model attributes to each column. Without ``input_noise``
@@ -463,7 +441,8 @@ class BayesianJFA(_JFABase):
             a proxy for its noisy neighbour) and 90% of its variance is called noise (truth:
             8%); with ``input_noise`` given it gets 0.16. Give ``input_noise`` whenever
             ``coef_`` is to be read as physical parameters.
-        coef_noisy_: ``(d,)`` the noisy-input predictor of eq. (3) (``= k``, ``E[y | x]``).
+        coef_noisy_: ``(d,)`` the noisy-input predictor of the paper's eq. (3) (``= k``,
+            ``E[y | x]``).
         intercept_, intercept_noisy_: 0-d intercepts of ``coef_`` and of ``coef_noisy_``.
         noise_x_: ``(d,)`` psi_x, input noise variances (each column's units squared).
         noise_z_: ``(d,)`` psi_z (y's units squared). noise_y_: 0-d psi_y (y's units squared).
@@ -479,13 +458,9 @@ class BayesianJFA(_JFABase):
         lower_bound_: ``(n_iter_,)`` float64, the variational lower bound on ``log p(X, y)``
             (caller's units, nats) after each iteration; non-decreasing (a Newton step whose
             gain is below the bound's round-off is kept unless the bound falls by more than
-            that round-off, 64 eps of ``max(|L|, N)``).
+            its round-off).
         n_iter_: iterations run. converged_: whether a tolerance stopped it. stop_reason_:
             ``"bound"``, ``"coef"`` or ``"max_iter"``.
-        n_accelerated_: kept Newton steps and prunes. n_estep_: E-step equivalents (the cost
-            in ``d x d`` mat-vecs): one per bound evaluation, E-step, gradient and Hessian,
-            plus each Newton solve's Cholesky flops over a mat-vec's (``(d + 1)^3 / (6 d^2)``
-            structured, ``(6 d + 1)^3 / (6 d^2)`` dense).
         active_: ``(d,)`` bool, the non-constant columns that were modelled.
 
     Example:
@@ -493,7 +468,7 @@ class BayesianJFA(_JFABase):
         >>> theta = est.coef_                                   # doctest: +SKIP
     """
 
-    _bayes = True
+    _methods = ("newton", "em")
 
     def __init__(
         self,
@@ -507,7 +482,7 @@ class BayesianJFA(_JFABase):
         ard: str = "shared",
         noise_floor: float = 1e-6,
         noise_y_floor: float = 1e-3,
-        accelerate: bool = True,
+        method: str = "newton",
         fit_intercept: bool = True,
         verbose: bool = False,
     ) -> None:
@@ -518,7 +493,7 @@ class BayesianJFA(_JFABase):
             input_noise=input_noise,
             noise_floor=noise_floor,
             noise_y_floor=noise_y_floor,
-            accelerate=accelerate,
+            method=method,
             fit_intercept=fit_intercept,
             verbose=verbose,
         )
@@ -535,13 +510,12 @@ class BayesianJFA(_JFABase):
         if self.ard not in ("shared", "output"):
             raise ValueError(f"ard must be 'shared' or 'output', got {self.ard!r}")
 
-    def _hyper(self, fixed_x: bool) -> jb.Hyper:
-        floors = (float(self.noise_floor), fixed_x, float(self.noise_y_floor))
-        if self.ard == "shared":  # Q(alpha_m) sees two loadings; -1: no separate prior of w_x
-            return jb.Hyper(True, float(self.a0) + 1.0, float(self.b0), *floors, -1.0)
-        return jb.Hyper(
-            True, float(self.a0) + 0.5, float(self.b0), *floors, _OUTPUT_ARD_WX_PRECISION
+    def _settings(self) -> jm.Settings:
+        return replace(
+            super()._settings(),
+            bayes=True,
+            a0=float(self.a0),
+            b0=float(self.b0),
+            shared_ard=self.ard == "shared",
+            wx_precision=_OUTPUT_ARD_WX_PRECISION,
         )
-
-    def _method(self) -> str:
-        return "newton" if self.accelerate else "em"
