@@ -262,16 +262,21 @@ def newton_step(x, cv: Curvature, xx, lam, lb) -> Step:
     l_c = torch.where(s > 0, (jk_t * yq).sum(-1) / torch.where(s > 0, s, 1.0), 0.0)
     k_cc = (jq_t * yq).sum((-2, -1)) + psy * psy / a_psy
     l_cc = torch.sqrt((k_cc - (l_c * l_c).sum(-1)).clamp_min(0.0))
-    Lm = torch.diag_embed(torch.cat([s, l_cc[:, None]], -1))
-    Lm[:, d, :d] = l_c
+    # L = diag(s, l_cc) + e_d (l_c, 0)^T: its products in O(d^2), not as dense matrices
+    diag_l = torch.cat([s, l_cc[:, None]], -1)  # (B, d + 1)
+    row_l = torch.nn.functional.pad(l_c, (0, 1))  # (B, d + 1), row d of L off its diagonal
     b_c = (jq_t * z).sum((-2, -1)) + psy * g[:, -1] / a_psy
     b = torch.cat([(jk_t * z).sum(-1), b_c[:, None]], -1)  # J A^-1 g
     W = _coupling(cv, xx, with_diagonal=False)
-    WL = W @ Lm
-    C = torch.eye(d + 1, dtype=W.dtype, device=W.device) + Lm.mT @ WL
+    WL = W * diag_l[:, None, :] + W[:, :, d:] * row_l[:, None, :]  # W L
+
+    def lt(v):  # L^T v for v (B, d + 1, k)
+        return diag_l[..., None] * v + row_l[..., None] * v[:, d:]
+
+    C = torch.eye(d + 1, dtype=W.dtype, device=W.device) + lt(WL)
     chol_c, info_c = torch.linalg.cholesky_ex(C)
     Wb = (W @ b[..., None])[..., 0]
-    u = Wb - (WL @ torch.cholesky_solve((Lm.mT @ Wb[..., None]), chol_c))[..., 0]
+    u = Wb - (WL @ torch.cholesky_solve(lt(Wb[..., None]), chol_c))[..., 0]
     step_in = z - yk * u[:, :d, None] - yq * u[:, d, None, None]  # (B, d, r)
     d_psy = (g[:, -1] - psy * u[:, d]) / a_psy
     delta = torch.cat([step_in.mT.reshape(B, r * d), d_psy[:, None]], -1)
