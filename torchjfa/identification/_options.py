@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from ..data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
 from ..dynamics import FRICTION_KINDS
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
@@ -244,8 +245,8 @@ class Options:
         group="preparation",
         parse=parse.auto_or("a positive cut-off in Hz", zero=False),
         help="low-pass cut-off, Hz, or 'auto': the one of 2..30 Hz that predicts held-out "
-        "torques best inside the training part (torchjfa.data.choose_cutoff; 10 Hz, with a "
-        "warning, where the log is too short to choose)",
+        "torques best inside the training part (torchjfa.data.choose_cutoff; "
+        f"{DEFAULT_CUTOFF_HZ:g} Hz, with a warning, where the log is too short to choose)",
     )
     filter: str = option(
         "butterworth",
@@ -291,7 +292,7 @@ class Options:
         metavar="V",
         help="smoothing velocity of the Coulomb friction term, rad/s: its column is "
         "tanh(qd / V), sign(qd) for 0; 'auto' chooses it with the cut-off by the same "
-        "held-out prediction",
+        "held-out prediction, from " + ", ".join(f"{v:g}" for v in COULOMB_GRID),
     )
     # estimation
     estimator: str | LinearEstimator = option(
