@@ -9,7 +9,7 @@ whose peak resident memory (``ru_maxrss``) is reported:
   the matrix is below ``--lstsq-cap-gb``;
 - ``xtx``: one pass forming ``X^T X`` (``torch.addmm`` per chunk): the floor of any method
   that reads the data;
-- ``bjfa``: the streaming Bayesian JFA path of `torchjfa.pipeline`: `Moments.update` per chunk,
+- ``bjfa``: the streaming Bayesian JFA path of `torchjfa.identification.fit`: `Moments.update` per chunk,
   then ``BayesianJFA(fit_intercept=False).fit_moments`` (the Newton optimiser; time per
   iteration = fit time / ``n_iter_``); the once-per-process warm-up (a first fit before the
   timed one) is printed apart and not counted;
