@@ -57,7 +57,7 @@ def _add_option(group, f: Field) -> None:
         else:
             group.add_argument(flag, dest=f.name, action="store_true", help=meta["help"])
         return
-    if f.name == "compiled":
+    if meta["action"] == "switch":
         group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction,
                            default=default, help=meta["help"])  # fmt: skip
         return

@@ -62,6 +62,7 @@ def option(
     flag: str | None = None,
     metavar: str | None = None,
     cli: bool = True,
+    action: str | None = None,
     default_factory=MISSING,
 ) -> Field:
     """A dataclass field of `Options` or `Compute` with its command-line metadata.
@@ -77,11 +78,13 @@ def option(
             gets ``--no-<name>``).
         metavar: the value's name in the help.
         cli: False for a field the command does not set (a Python object, say).
+        action: ``"switch"`` for a ``bool | None`` field: ``--name`` / ``--no-name``, neither
+            given the default.
     """
     if group not in GROUPS:
         raise ValueError(f"unknown option group {group!r}; choose from {tuple(GROUPS)}")
     meta = {"group": group, "help": help, "parse": parse, "choices": choices, "flag": flag,
-            "metavar": metavar, "cli": cli}  # fmt: skip
+            "metavar": metavar, "cli": cli, "action": action}  # fmt: skip
     return field(default=default, default_factory=default_factory, metadata=meta)
 
 
@@ -137,6 +140,7 @@ class Compute:
     compiled: bool | None = option(
         None,
         group="compute",
+        action="switch",
         help="form the regressor with a C++ kernel generated for the robot (several times "
         "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
         "found, else the torch path",
