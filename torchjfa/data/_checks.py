@@ -2,8 +2,9 @@
 
 A log can be well formed (`read_log` accepts it) and still be meaningless for identification:
 a gap of seconds that resampling would bridge with an invented spline, a robot that stands
-still, positions in degrees, columns scrambled by a wrong reshape. Each of these once ended in
-a confident report with absurd numbers (held-out nMSE from 6 to 1e24) and exit status 0.
+still, positions in degrees, velocities in deg/s, columns scrambled by a wrong reshape.
+Unchecked, each of these ends in a confident report with absurd numbers (held-out nMSE from 6
+to 1e24) and exit status 0.
 `check_log` finds them and says what to do, one line each; a `LogProblem` that is ``fatal``
 means the result would be meaningless (`torchjfa identify` stops with exit status 2).
 """
@@ -17,13 +18,20 @@ import numpy as np
 
 from ._log import JointLog
 
-__all__ = ["LogProblem", "check_log"]
+__all__ = ["LogProblem", "check_log", "velocity_ratios"]
 
 GAP_STEPS = 20  # a step this many times the median ...
 GAP_MIN_S = 0.05  # ... and at least this long is a gap, not jitter
 STILL_RAD = 1e-3  # a joint whose 1-99 % position range is below this does not move
 ROUGH = 0.2  # RMS sample-to-sample change over the position range: not a smooth motion
 LIMIT_MARGIN_RAD = 0.05  # positions this far beyond a limit (plus 5 % of the range) leave it
+# measured velocities against the positions' change: over windows of VELOCITY_WINDOW_S, the
+# least-squares ratio of the integral of qd to the change of q (1 when qd is dq/dt in rad/s)
+VELOCITY_WINDOW_S = 0.05
+DEG_RATIO = 180.0 / math.pi  # qd in deg/s with q in rad ...
+DEG_TOLERANCE = 0.2  # ... within 20 % of it: fatal
+SCALE_FACTOR = 2.0  # a ratio beyond [1/2, 2] (or negative): a warning naming the joint
+MIN_CORRELATION = 0.5  # |correlation| below it: qd does not follow q's change (a warning)
 
 
 @dataclass(frozen=True)
@@ -106,6 +114,94 @@ def _motion(log: JointLog) -> list[LogProblem]:
     return out
 
 
+def velocity_ratios(log: JointLog) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint, how the measured velocity compares with the positions' change.
+
+    Over windows of `VELOCITY_WINDOW_S` (at least one sample step) the change of ``q`` is
+    compared with the integral of ``qd`` (trapezoids): the least-squares ratio of the integral
+    to the change is 1 for a ``qd`` that is ``dq/dt`` in the positions' unit per second, ~57.3
+    for deg/s with radians. Integrating, unlike differentiating ``q``, neither amplifies the
+    position noise nor loses the fast part of the motion.
+
+    Returns:
+        ``(n_dof,)`` ratios and ``(n_dof,)`` correlations of the two; NaN for a joint that
+        does not move (1-99 % range below `STILL_RAD`) or a log without ``qd``.
+    """
+    ratio = np.full(log.n_dof, np.nan)
+    corr = np.full(log.n_dof, np.nan)
+    if log.qd is None or log.n_samples < 3:
+        return ratio, corr
+    t, q, qd = log.t.numpy(), log.q.numpy(), log.qd.numpy()
+    dt = np.diff(t)
+    w = int(np.clip(round(VELOCITY_WINDOW_S / float(np.median(dt))), 1, (log.n_samples - 1) // 2))
+    integral = np.concatenate(
+        [np.zeros((1, log.n_dof)), np.cumsum(0.5 * (qd[1:] + qd[:-1]) * dt[:, None], axis=0)]
+    )
+    dq = q[w:] - q[:-w]
+    di = integral[w:] - integral[:-w]
+    for j in np.flatnonzero(_ranges(q) >= STILL_RAD):
+        a, b = dq[:, j], di[:, j]
+        aa, bb = float(a @ a), float(b @ b)
+        if aa > 0 and bb > 0:
+            ratio[j] = float(a @ b) / aa
+            corr[j] = float(a @ b) / math.sqrt(aa * bb)
+    return ratio, corr
+
+
+def _velocities(log: JointLog) -> list[LogProblem]:
+    ratio, corr = velocity_ratios(log)
+    names = np.array(log.joint_names, dtype=object)
+    known = np.isfinite(ratio)
+    follows = known & (np.abs(corr) >= MIN_CORRELATION)
+    deg = follows & (np.abs(ratio / DEG_RATIO - 1.0) <= DEG_TOLERANCE)
+    off = follows & ~deg & ((ratio < 1.0 / SCALE_FACTOR) | (ratio > SCALE_FACTOR))
+    loose = known & ~follows  # qd unrelated to q's change
+    out = []
+
+    def joints(mask) -> list[str]:
+        return [str(n) for n in names[mask]]
+
+    def listed(mask) -> str:
+        return ", ".join(f"{n} {r:.3g}" for n, r in zip(names[mask], ratio[mask], strict=True))
+
+    if deg.any():
+        out.append(
+            LogProblem(
+                f"{log.source}: the velocities of joint(s) {joints(deg)} look like deg/s "
+                f"while the positions are in rad (qd is {listed(deg)} times the positions' "
+                f"change per second, about 180/pi = {DEG_RATIO:.1f}): convert the qd columns "
+                "to rad/s (multiply by pi/180), or leave them out to differentiate q",
+                fatal=True,
+            )
+        )
+    if off.any():
+        hint = ""
+        if np.all(np.abs(ratio[off] * DEG_RATIO - 1.0) <= DEG_TOLERANCE):
+            hint = " (about pi/180: are the positions in degrees?)"
+        elif off.sum() == follows.sum() > 1 and np.ptp(np.log(np.abs(ratio[off]))) < 0.2:
+            hint = " (the same factor for every joint: is the time column's unit right?)"
+        out.append(
+            LogProblem(
+                f"{log.source}: the velocities of joint(s) {joints(off)} disagree with the "
+                f"positions' change per second by a factor ({listed(off)}; 1 expected){hint}: "
+                "check the qd columns' unit (rad/s), sign and joint order, or leave them out "
+                "to differentiate q",
+                fatal=False,
+            )
+        )
+    if loose.any():
+        shown = ", ".join(f"{n} {c:.2f}" for n, c in zip(names[loose], corr[loose], strict=True))
+        out.append(
+            LogProblem(
+                f"{log.source}: the velocities of joint(s) {joints(loose)} do not follow "
+                f"the positions' change (correlation {shown}; near 1 expected): are the qd "
+                "columns those of these joints, and in step with q?",
+                fatal=False,
+            )
+        )
+    return out
+
+
 def _limits(log: JointLog, limits) -> list[LogProblem]:
     lim = np.asarray(limits, dtype=np.float64)
     if lim.shape != (log.n_dof, 2):
@@ -158,9 +254,12 @@ def check_log(log: JointLog, *, limits=None) -> list[LogProblem]:
     Returns:
         A list of `LogProblem` (empty when nothing is found): gaps in time longer than
         ``max(20 median steps, 0.05 s)``, joints that do not move, positions that are not a
-        smooth motion, positions outside the limits (or in degrees).
+        smooth motion, positions outside the limits (or in degrees), velocities in deg/s
+        with positions in rad (fatal: qd within 20 % of 180/pi times the positions' change per
+        second, see `velocity_ratios`), velocities that disagree with the positions' change
+        by more than a factor 2 or do not follow it (warnings).
     """
-    problems = _gaps(log) + _motion(log)
+    problems = _gaps(log) + _motion(log) + _velocities(log)
     if limits is not None:
         problems += _limits(log, limits)
     return sorted(problems, key=lambda p: not p.fatal)

@@ -1,25 +1,43 @@
-"""Joint logs from files: CSV, NPZ and Parquet, columns matched to a robot's joints by name.
+"""Joint logs from files: CSV, NPZ, Parquet and ROS bags, columns matched to joints by name.
 
 A log is a table with one row per sample: a time column and, per joint, the measured position,
-optionally the velocity (and acceleration), and the measured torque. The library's column names
-are
+optionally the velocity (and acceleration), and the measured torque or motor current. The
+library's column names are
 
-    t                    time, s (``time_scale`` converts other units, e.g. 1e-9 for ns)
+    t                    time, s (other units: see below)
     q_<joint>            position, rad (m for a prismatic joint)
     qd_<joint>           velocity, rad/s (optional: differentiated from q when absent)
     qdd_<joint>          acceleration, rad/s^2 (optional, rarely measured)
     tau_<joint>          measured joint torque, N m (N)
+    i_<joint>            motor current, A (instead of tau_: torque = drive gain (N m/A) x i)
 
-and ``columns=`` maps them to a file's own names, e.g. ``{"t": "stamp", "q_shoulder":
-"pos[0]"}``. Joints may come in any order; `JointLog.reorder` matches them to a model by name.
+and ``columns=`` maps them to a file's own names, one by one (``{"t": "stamp", "q_shoulder":
+"pos[0]"}``) or by pattern (``{"q_{joint}": "pos_{joint}"}``: every column matching the value
+is a joint's, the joint being the part ``{joint}`` stands for). Joints may come in any order;
+`JointLog.reorder` matches them to a model by name.
 
-NPZ files hold either one array per column under the names above, or matrices ``t`` ``(n,)``,
-``q``, ``tau`` (and ``qd``, ``qdd``) ``(n, n_dof)`` with ``joint_names`` ``(n_dof,)`` (the
-layout `torchjfa.sim.SimulatedLog.save` writes). CSV and Parquet are read with pyarrow.
+Formats, from the suffix (or ``format=``):
+
+- ``.csv``, ``.tsv``, ``.txt``: delimited text, read with pyarrow; the delimiter (tab,
+  semicolon, comma or runs of spaces) is found from the first lines, whatever the suffix, and
+  decimal commas (``1,25``) are read when the delimiter is not the comma.
+- ``.npz``: one array per column under the names above, or matrices ``t`` ``(n,)``, ``q``,
+  ``tau`` (and ``qd``, ``qdd``) ``(n, n_dof)`` with ``joint_names`` ``(n_dof,)`` (the layout
+  `torchjfa.sim.SimulatedLog.save` writes).
+- ``.parquet``, ``.pq``: a table, read with pyarrow.
+- ``.bag`` (ROS 1), ``.mcap``, ``.db3`` or a ROS 2 bag folder (holding ``metadata.yaml``):
+  the joint states of one topic (``topic=``), time from the header stamps, efforts as torques
+  or motor currents (``effort=``).
+
+Time: ``time_scale`` (seconds per unit) converts the time column as given. Without it the
+column is taken to be in seconds unless its median step gives a rate below 2 Hz; then it is
+read in the first of ms, us and ns giving a rate in [10 Hz, 10 kHz), and the log's
+``info["read_notes"]`` says so (else `LogError` asks for ``time_scale``). A clock far from 0
+(epoch time) is shifted to start at 0 (``info["time_origin_s"]``), keeping the steps exact.
 
 Every check here raises `LogError` (a ``ValueError``) with a message meant for the person who
-recorded the log: a missing column, NaN rows (reported with their row numbers; dropped only on
-request), time that is not strictly increasing.
+recorded the log: every missing column at once, NaN rows (reported with their row numbers;
+dropped only on request), time that is not strictly increasing.
 """
 
 from __future__ import annotations
@@ -33,12 +51,15 @@ import numpy as np
 import torch
 
 from .._joints import permutation
-from ._npz import npz_columns
-from ._schema import KINDS, TIME_COLUMN, LogError, joints_from_columns
+from ._columns import gather, seconds, table_columns
+from ._npz import NpzArchive, npz_columns
+from ._schema import KINDS, TIME_COLUMN, LogError
 
 __all__ = ["JointLog", "LogError", "read_log", "write_log", "KINDS", "TIME_COLUMN"]
 
-_FORMATS = ("csv", "npz", "parquet")
+_FORMATS = ("csv", "npz", "parquet", "ros")
+_SUFFIXES = {"pq": "parquet", "txt": "csv", "tsv": "csv", "bag": "ros", "mcap": "ros", "db3": "ros"}
+_EFFORTS = ("torque", "current")
 
 
 def _rows(idx: np.ndarray, limit: int = 8) -> str:
@@ -64,7 +85,10 @@ class JointLog:
             log is sampled so that a period is a whole number of samples (see
             `torchjfa.data.prepare`), else None.
         source: where the log came from (a path), for messages.
-        info: what `torchjfa.data.prepare` did (rates, period, samples dropped).
+        info: what `read_log` found (``effort``: ``"torque"`` or ``"current"``,
+            ``drive_gains``, ``time_scale``, ``read_notes``: lines on what it converted by
+            itself, e.g. the time unit), or, after `torchjfa.data.prepare`, what that did
+            (rates, period, samples dropped).
     """
 
     t: torch.Tensor
@@ -206,47 +230,71 @@ class JointLog:
 # ------------------------------------------------------------------------------------ reading
 def _format(path: Path, fmt: str | None) -> str:
     if fmt is None:
+        if path.is_dir() and (path / "metadata.yaml").is_file():
+            return "ros"  # a ROS 2 bag folder
         fmt = path.suffix.lower().lstrip(".")
-        fmt = {"pq": "parquet", "txt": "csv", "tsv": "csv"}.get(fmt, fmt)
+        fmt = _SUFFIXES.get(fmt, fmt)
     if fmt not in _FORMATS:
         raise LogError(
-            f"{path}: cannot tell the log's format from its name; pass format= one of {_FORMATS}"
+            f"{path}: cannot tell the log's format from its name; pass format= one of "
+            f"{_FORMATS} (ros: a .bag, .mcap or .db3 file, or a ROS 2 bag folder)"
         )
     return fmt
 
 
-def _table_columns(table, path: Path) -> dict[str, np.ndarray]:
-    import pyarrow as pa
-
-    cols = {}
-    for name, col in zip(table.column_names, table.columns, strict=True):
-        if pa.types.is_integer(col.type) or pa.types.is_floating(col.type):
-            cols[name] = col.to_numpy(zero_copy_only=False).astype(np.float64)
-        elif pa.types.is_null(col.type):
-            cols[name] = np.full(len(col), np.nan)
-        else:
-            cols[name] = None  # text, kept to name it if it is asked for
+def _npz_columns(path: Path) -> dict[str, np.ndarray | None]:
+    """`npz_columns`, with one-dimensional integer members kept as int64 (time stamps in ns
+    lose their last digits as float64)."""
+    cols = npz_columns(path)
+    archive = NpzArchive(path)
+    headers = archive.headers(k for k in archive.members if k in cols)
+    ints = [k for k, h in headers.items() if h.dtype.kind in "iu" and len(h.shape) == 1]
+    for k, v in archive.arrays(ints).items():
+        cols[k] = v.astype(np.int64)
     return cols
 
 
-def _read_columns(path: Path, fmt: str) -> dict[str, np.ndarray | None]:
+def _read_columns(
+    path: Path, fmt: str, *, topic: str | None = None, effort: str = "torque"
+) -> tuple[dict[str, np.ndarray | None], dict]:
+    """The file's columns by its own names (None for text columns), and ``info`` entries
+    (``format``; ``delimiter`` for text)."""
+    info: dict = {"format": fmt}
+    if fmt == "ros":
+        from ._ros import ros_columns
+
+        return dict(ros_columns(path, topic=topic, effort=effort)), info
     if fmt == "npz":
-        return npz_columns(path)
+        return _npz_columns(path), info
+    if fmt == "csv":
+        from ._text import read_table
+
+        table, delimiter = read_table(path)
+        info["delimiter"] = delimiter
+        return table_columns(table, decimal_comma=delimiter != ","), info
     import pyarrow as pa
+    from pyarrow import parquet
 
     try:
-        if fmt == "csv":
-            from pyarrow import csv
-
-            delimiter = "\t" if path.suffix.lower() == ".tsv" else ","
-            table = csv.read_csv(path, parse_options=csv.ParseOptions(delimiter=delimiter))
-        else:
-            from pyarrow import parquet
-
-            table = parquet.read_table(path)
+        table = parquet.read_table(path)
     except (pa.ArrowInvalid, OSError) as exc:
         raise LogError(f"{path}: cannot read it as {fmt}: {exc}") from None
-    return _table_columns(table, path)
+    return table_columns(table), info
+
+
+def _options(path: Path, fmt: str, topic: str | None, effort: str) -> None:
+    if effort not in _EFFORTS:
+        raise LogError(f"{path}: effort must be one of {_EFFORTS}, got {effort!r}")
+    if fmt != "ros" and (topic is not None or effort != "torque"):
+        given = "topic" if topic is not None else "effort"
+        raise LogError(
+            f"{path}: {given} applies to ROS bags only; in a {fmt} log the columns say what "
+            "they hold (tau_<joint> torques, i_<joint> motor currents)"
+        )
+    if path.is_dir() and fmt != "ros":
+        raise LogError(
+            f"{path} is a folder, not a log file (a ROS 2 bag folder holds metadata.yaml)"
+        )
 
 
 def read_log(
@@ -254,82 +302,59 @@ def read_log(
     *,
     columns: Mapping[str, str] | None = None,
     joints: Sequence[str] | None = None,
-    time_scale: float = 1.0,
+    time_scale: float | None = None,
     drop_nan: bool = False,
     format: str | None = None,
+    drive_gains: Mapping[str, float] | None = None,
+    topic: str | None = None,
+    effort: str = "torque",
 ) -> JointLog:
-    """Read a joint log from a CSV, NPZ or Parquet file.
+    """Read a joint log from a CSV, NPZ or Parquet file or a ROS bag (see the module's text).
 
     Args:
-        path: the file (``.csv``/``.tsv``, ``.npz`` or ``.parquet``/``.pq``).
-        columns: the library's column names mapped to the file's (``{"t": "time", "q_j1":
-            "pos1", "tau_j1": "effort1"}``); names not mapped are looked up as they are.
-        joints: the joints to read (default: every joint that has a ``q_`` or ``tau_``
-            column, after the mapping), in this order.
-        time_scale: seconds per unit of the time column (1e-9 for nanoseconds).
+        path: the file (``.csv``/``.tsv``/``.txt``, ``.npz``, ``.parquet``/``.pq``, ``.bag``,
+            ``.mcap``, ``.db3``) or a ROS 2 bag folder.
+        columns: the library's column names mapped to the file's, by name (``{"t": "time",
+            "q_j1": "pos1"}``) or by pattern (``{"q_{joint}": "pos_{joint}",
+            "tau_{joint}": "effort_{joint}"}``); names not mapped are looked up as they are.
+        joints: the joints to read (default: every joint that has a ``q_``, ``qd_``,
+            ``qdd_``, ``tau_`` or ``i_`` column, after the mapping), in this order.
+        time_scale: seconds per unit of the time column (1e-9 for nanoseconds), used as given;
+            None: seconds, or ms / us / ns when the median step says so (noted in
+            ``info["read_notes"]``).
         drop_nan: drop rows where any signal read is NaN or infinite (they are reported, and
             `LogError` is raised, when False).
-        format: ``"csv"``, ``"npz"`` or ``"parquet"`` (default from the file's suffix).
+        format: ``"csv"``, ``"npz"``, ``"parquet"`` or ``"ros"`` (default from the suffix).
+        drive_gains: N m/A per joint name, for a log with motor currents ``i_<joint>`` (A)
+            and no torques: ``tau = gain * i``. Every joint read needs one.
+        topic: the ``sensor_msgs/JointState`` topic of a ROS bag (default: its only one).
+        effort: what a ROS bag's efforts are: ``"torque"`` (N m) or ``"current"`` (A, read
+            with ``drive_gains``).
 
     Returns:
         A `JointLog` with ``q`` and ``tau``, and ``qd``/``qdd`` when the file has them for
-        every joint.
+        every joint; its ``info`` holds ``format``, ``effort`` (``"torque"`` or
+        ``"current"``), ``drive_gains`` (currents only), ``time_scale`` (seconds per unit
+        used), ``read_notes`` (one line per thing done without being asked, e.g. the time
+        unit, without the file's name), ``delimiter`` (text) and ``time_origin_s`` (s, the
+        first stamp subtracted from a clock far from 0).
 
     Raises:
         FileNotFoundError: if ``path`` does not exist.
-        LogError: on an unreadable file, a missing column (time, or a joint's position or
-            torque), a column that is not numeric, a velocity column for some joints only,
-            NaN rows (unless ``drop_nan``), time that is not strictly increasing, or fewer
-            than two samples.
+        LogError: on an unreadable file (naming the delimiter tried), every missing column at
+            once (time, a joint's position, torque or current, a mapped name), missing drive
+            gains, torques and currents both present with drive gains, a column that is not
+            numeric, a velocity column for some joints only, NaN rows (unless ``drop_nan``),
+            a time unit not found, time that is not strictly increasing, fewer than two
+            samples, or ``topic``/``effort`` for a format that is not a ROS bag.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"no log file {str(path)!r}")
     fmt = _format(path, format)
-    raw = _read_columns(path, fmt)
-    mapping = {str(k): str(v) for k, v in (columns or {}).items()}  # ours -> the file's
-    for ours, theirs in mapping.items():
-        if theirs not in raw:
-            raise LogError(
-                f"{path}: the column mapping names {theirs!r} (for {ours!r}) but the file has no "
-                f"such column; it has {sorted(raw)}"
-            )
-    renamed_from = {v: k for k, v in mapping.items()}
-    names = [renamed_from.get(n, n) for n in raw]
-    if joints is None:
-        joints = joints_from_columns(names)
-        if not joints:
-            raise LogError(
-                f"{path}: no joint columns found; expected columns named q_<joint> and "
-                f"tau_<joint> (or a column mapping), the file has {sorted(raw)}"
-            )
-    joints = [str(j) for j in joints]
-
-    def column(name: str) -> np.ndarray:
-        source = mapping.get(name, name)
-        if source not in raw:
-            if name == TIME_COLUMN:
-                hint = "a time column 't' in seconds (or map yours: columns={'t': ...})"
-            else:
-                hint = f"a column {name!r} (or map yours: columns={{{name!r}: ...}})"
-            raise LogError(f"{path}: missing column {source!r}; the log needs {hint}")
-        v = raw[source]
-        if v is None:
-            raise LogError(f"{path}: column {source!r} is not numeric")
-        return v
-
-    t = column(TIME_COLUMN) * float(time_scale)
-    signals: dict[str, np.ndarray] = {}
-    for kind in KINDS:
-        present = [j for j in joints if mapping.get(f"{kind}_{j}", f"{kind}_{j}") in raw]
-        if kind in ("q", "tau") or present:
-            if kind in ("qd", "qdd") and len(present) != len(joints):
-                missing = [f"{kind}_{j}" for j in joints if j not in present]
-                raise LogError(
-                    f"{path}: {kind} columns for some joints but not for {missing}; give every "
-                    "joint's or none"
-                )
-            signals[kind] = np.stack([column(f"{kind}_{j}") for j in joints], axis=1)
+    _options(path, fmt, topic, effort)
+    raw, info = _read_columns(path, fmt, topic=topic, effort=effort)
+    t, joints, signals, found = gather(raw, columns, joints, drive_gains, path)
     bad = ~np.isfinite(t)
     for v in signals.values():
         bad |= ~np.isfinite(v).all(axis=1)
@@ -346,6 +371,10 @@ def read_log(
         signals = {k: v[keep] for k, v in signals.items()}
     if t.size < 2:
         raise LogError(f"{path}: the log has {t.size} usable samples; at least 2 are needed")
+    t, timing = seconds(t, time_scale, path)
+    notes = found["read_notes"] + timing["read_notes"]
+    info.update(found)
+    info.update(timing, read_notes=notes)
     dt = np.diff(t)
     back = np.flatnonzero(dt <= 0)
     if back.size:
@@ -354,7 +383,7 @@ def read_log(
             f"{path}: time must increase strictly, but at row {i + 1} it goes from {t[i]:.9g} s "
             f"to {t[i + 1]:.9g} s ({back.size} such steps; sort the log or drop repeated rows)"
         )
-    return JointLog(t=t, joint_names=tuple(joints), source=str(path), **signals)
+    return JointLog(t=t, joint_names=tuple(joints), source=str(path), info=info, **signals)
 
 
 def write_log(log: JointLog, path: str | os.PathLike, *, format: str | None = None) -> None:
@@ -364,6 +393,8 @@ def write_log(log: JointLog, path: str | os.PathLike, *, format: str | None = No
     """
     path = Path(path)
     fmt = _format(path, format)
+    if fmt == "ros":
+        raise LogError(f"{path}: write_log writes csv, npz or parquet files, not ROS bags")
     cols = log.to_columns()
     if fmt == "npz":
         with open(path, "wb") as fh:
