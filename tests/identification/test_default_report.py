@@ -1,12 +1,11 @@
-"""The default `torchjfa identify` on a simulated log gives the report it gave before the flow
-was restructured: every number of ``report.json`` to 1e-10 relative.
+"""The default `torchjfa identify` on a simulated log gives the stored report: every number of
+``report.json`` to 1e-10 relative.
 
 ``data/head_default_report.json`` was written by ``torchjfa identify head head.csv`` (all
-defaults) on ``torchjfa simulate head --n-samples 5040`` with the flow as it was before its
-stages were reorganised (one entry point, the fit on prepared logs private, the bias correction
-a stage of its own); the paths, the command line and the wall time are left out. A change in
-the numbers means a change in behaviour, not in structure: MuJoCo's simulation or the flow
-itself.
+defaults) on ``torchjfa simulate head --n-samples 5040``; the paths, the command line and the
+wall time are left out. A change in the numbers means a change in behaviour: MuJoCo's
+simulation or the flow itself (regenerate the file only for a change meant to move them, and
+say so in the CHANGELOG).
 """
 
 import json

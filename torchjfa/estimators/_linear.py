@@ -22,6 +22,11 @@ from ._cv import MomentEstimator, check_grid, check_positive_real
 __all__ = ["OLS", "Ridge", "TLS", "min_norm_solve"]
 
 
+#: columns whose norm is below this fraction of the largest column's are round-off: their
+#: coefficient is 0 (sqrt of the float64 epsilon)
+ROUNDOFF_COLUMN = 1.5e-8
+
+
 def min_norm_solve(
     sxx: torch.Tensor, sxy: torch.Tensor, *, rcond: float = 1e-12
 ) -> tuple[torch.Tensor, int]:
@@ -30,7 +35,8 @@ def min_norm_solve(
     The Gram matrix is scaled to unit diagonal (``C = D^-1 sxx D^-1``, ``D = sqrt(diag sxx)``),
     which removes the ill-conditioning due to column units, and solved through the
     eigen-decomposition of ``C``; eigenvalues below ``rcond * max eigenvalue`` are treated as
-    zero (pseudo-inverse). For full-rank data this is the least-squares solution; for
+    zero (pseudo-inverse). Columns whose norm is below `ROUNDOFF_COLUMN` of the largest
+    column's hold round-off only and get coefficient 0. For full-rank data this is the least-squares solution; for
     rank-deficient data (e.g. duplicated columns) it is the minimum-norm solution in the scaled
     coordinates, which is the usual minimum-norm solution when the dependent columns have the
     same scale (exactly duplicated columns share their weight equally).
@@ -45,13 +51,19 @@ def min_norm_solve(
         ``(coef, rank)``: coefficients of shape ``(d,)`` and the numerical rank used.
     """
     scale = torch.sqrt(torch.diagonal(sxx).clamp_min(0))
-    scale = torch.where(scale > 0, scale, torch.ones_like(scale))
-    corr = sxx / torch.outer(scale, scale)
+    # a column this far below the largest holds round-off (a kinematic cos(pi/2), say), not a
+    # signal: scaled to unit norm it would look like one and take an absurd coefficient
+    live = scale > ROUNDOFF_COLUMN * scale.max()
+    coef = torch.zeros_like(sxy)
+    if not bool(live.any()):
+        return coef, 0
+    s, idx = scale[live], live.nonzero().flatten()
+    corr = sxx[idx][:, idx] / torch.outer(s, s)
     evals, evecs = torch.linalg.eigh(0.5 * (corr + corr.T))
     keep = evals > rcond * evals[-1].clamp_min(torch.finfo(evals.dtype).tiny)
-    z = evecs[:, keep].T @ (sxy / scale)
-    coef = evecs[:, keep] @ (z / evals[keep])
-    return coef / scale, int(keep.sum())
+    z = evecs[:, keep].T @ (sxy[idx] / s)
+    coef[idx] = (evecs[:, keep] @ (z / evals[keep])) / s
+    return coef, int(keep.sum())
 
 
 class OLS(MomentEstimator):
