@@ -26,7 +26,7 @@ from .identification._options import (
 
 UsageError = IdentificationError
 
-__all__ = ["add_identify", "cmd_identify", "friction_terms", "identify_options"]
+__all__ = ["add_identify", "add_option", "cmd_identify", "friction_terms", "identify_options"]
 
 #: ``--smoke``: the first seconds of the log only
 SMOKE_SECONDS = 12.0
@@ -46,7 +46,7 @@ def _default(f: Field):
     return f.default_factory() if f.default is MISSING else f.default
 
 
-def _add_option(group, f: Field) -> None:
+def add_option(group, f: Field) -> None:
     """One field's flag: a bool's switch, else a value with its parser and choices."""
     meta, default = f.metadata, _default(f)
     flag = meta["flag"] or "--" + f.name.replace("_", "-")
@@ -141,11 +141,12 @@ def add_identify(sub) -> argparse.ArgumentParser:
     returns its parser, which runs `cmd_identify`."""
     p = sub.add_parser(
         "identify",
-        help="identify a robot's parameters from a log and write a report",
-        description="Read a joint log (CSV, NPZ, Parquet), filter and differentiate it, "
-        "identify the rigid-body and friction parameters, project them onto physically "
-        "consistent ones, and write the model, tables, figures and a Markdown report. Every "
-        "option is a field of torchjfa.Options (the same defaults from Python).",
+        help="identify a robot's parameters from its logs and write a report",
+        description="Read joint logs (CSV, NPZ, Parquet, ROS bags), drop the standing still at "
+        "their ends, filter and differentiate each, identify the rigid-body and friction "
+        "parameters from all of them, project them onto physically consistent ones, and write "
+        "the model, tables, figures and a Markdown report. Every option is a field of "
+        "torchjfa.Options (the same defaults from Python).",
     )
     p.add_argument(
         "robot",
@@ -153,17 +154,26 @@ def add_identify(sub) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "log",
-        help="the log: .csv, .npz or .parquet with columns t, q_<joint>, [qd_<joint>], tau_<joint>",
+        nargs="+",
+        help="the logs (one identification from all): .csv, .npz or .parquet with columns t, "
+        "q_<joint>, [qd_<joint>], tau_<joint> (or motor currents i_<joint> with "
+        "--drive-gains), or ROS bags (.bag, .mcap, .db3, a bag folder)",
     )
     p.add_argument("--out", default="result", help="output folder")
-    p.add_argument("--validation-log", default=None, help="hold out this log instead")
+    p.add_argument(
+        "--validation-log",
+        nargs="+",
+        default=None,
+        metavar="LOG",
+        help="hold out these logs instead of the end of each log",
+    )
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--smoke", action="store_true",
                    help=f"quick check: the first {SMOKE_SECONDS:g} s only")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     groups = {key: p.add_argument_group(title) for key, title in GROUPS.items()}
     for f in cli_fields():
-        _add_option(groups[f.metadata["group"]], f)
+        add_option(groups[f.metadata["group"]], f)
     est = groups["estimator"]
     est.add_argument("--max-iter", type=int, default=None,
                      help="shortcut for --estimator-options max_iter=N (JFA, Bayesian JFA)")  # fmt: skip

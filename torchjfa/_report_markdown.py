@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ._result import PRIOR_TOLERANCE
 from .physical import ConsistencyReport
 from .physical._base import parameter_kind
 
@@ -149,6 +150,7 @@ def report_markdown(report, images: Mapping[str, str] | None = None) -> str:
     lines = [
         *_header(report, summary),
         *_torques_section(report.fits, report.model.joint_names),
+        *_logs_section(report.settings),
         *_noise_section(report.noise),
         *_consistency_section(report.consistency),
         *_base_section(report),
@@ -227,6 +229,34 @@ def _torques_section(fits: Mapping[str, object], joints: list[str]) -> list[str]
         "all: nMSE is the mean over the joints; RMS is the quadratic mean over the joints, "
         "sqrt(mean of the squared per-joint RMS), in N m.",
     ]
+
+
+def _logs_section(settings: Mapping[str, object]) -> list[str]:
+    """The held-out target, and with several logs a table of each log's samples, rest dropped
+    and held-out error of the identified model."""
+    lines = []
+    if settings.get("held_out_target"):
+        lines += ["", f"Held-out target: {settings['held_out_target']}."]
+    logs = settings.get("logs") or []
+    if len(logs) < 2 and not any(any(r.get("rest_dropped_s") or ()) for r in logs):
+        return lines
+    lines += [
+        "",
+        "### Logs",
+        "",
+        "| log | training samples | held out | rest dropped, s (start, end) | held-out nMSE | "
+        "held-out RMS, N m |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in logs:
+        rest = ", ".join(f"{x:.3g}" for x in r.get("rest_dropped_s") or (0.0, 0.0))
+        nmse = f"{r['mean_nmse']:.4g}" if "mean_nmse" in r else "-"
+        rms = f"{r['mean_rms']:.4g}" if "mean_rms" in r else "-"
+        lines.append(
+            f"| `{r['log']}` | {r['train_samples']} | {r['held_out_samples']} | {rest} | "
+            f"{nmse} | {rms} |"
+        )
+    return lines + ["", "nMSE: the mean over the joints; RMS: the mean of the joints' RMS."]
 
 
 def _noise_section(noise: Mapping[str, object]) -> list[str]:
@@ -315,7 +345,14 @@ def _prior_note(r) -> list[str]:
             + ")"
         )
     edge = ""
-    if r.prior_choice and r.prior_weight == max(r.prior_choice) > 0:
+    values = list(r.prior_choice.values()) if r.prior_choice else []
+    if values and max(values) <= min(values) * (1.0 + PRIOR_TOLERANCE):
+        edge = (
+            f" The held-out blocks cannot tell the weights apart (all within "
+            f"{PRIOR_TOLERANCE:.0%} of each other): the rule takes the largest, so the "
+            "description decides wherever the data are silent."
+        )
+    elif r.prior_choice and r.prior_weight == max(r.prior_choice) > 0:
         edge = (
             " The largest weight tried won: the held-out blocks prefer the description "
             "even where the data have a say (prior std = each kind's typical size / "

@@ -13,7 +13,11 @@ from .estimators import LinearEstimator
 from .physical import ProjectionResult
 from .stats import Moments
 
-__all__ = ["IdentificationResult"]
+__all__ = ["IdentificationResult", "PRIOR_TOLERANCE"]
+
+#: the description prior's weights whose held-out errors lie within this fraction of the best
+#: one's tie (`torchjfa.identification.pick_prior_weight` takes the largest of them)
+PRIOR_TOLERANCE = 0.01
 
 
 @dataclass

@@ -1,7 +1,9 @@
-"""The ``torchjfa`` command: identify a robot from a log, simulate logs, evaluate a model.
+"""The ``torchjfa`` command: identify a robot from its logs, simulate logs, evaluate a model.
 
     torchjfa simulate head --out log.csv
     torchjfa identify head log.csv --estimator bayes-jfa --friction viscous,coulomb --out result/
+    torchjfa identify robot.urdf run1.csv run2.csv --drive-gains 10,10.7,8.5,9,9.5,10.1
+    torchjfa evaluate result/model.npz run3.csv --out evaluation/
     torchjfa evaluate result/model.npz --robot head
 
 A thin shell over `torchjfa.identify` (read and prepare the log, moments, estimator,
@@ -22,7 +24,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ._cli_identify import add_identify
+from ._cli_identify import add_identify, add_option
 from ._cli_identify import identify_options as identify_options
 from .estimators import available as _estimators
 from .identification._options import IdentificationError
@@ -137,6 +139,37 @@ def cmd_excite(args) -> int:
 
 # ------------------------------------------------------------------------------ evaluate
 def cmd_evaluate(args) -> int:
+    if args.logs:
+        if args.robot is not None:
+            raise UsageError("give logs or --robot (a simulated robot), not both")
+        return _evaluate_logs(args)
+    if args.robot is None:
+        raise UsageError("give the logs to evaluate on, or --robot head|arm for a simulated robot")
+    return _evaluate_simulated(args)
+
+
+def _evaluate_logs(args) -> int:
+    """``torchjfa evaluate MODEL LOG ...``: the model judged on real logs."""
+    from .identification import Options, evaluate
+    from .identification._options import cli_fields
+
+    reading = {
+        f.name: getattr(args, f.name)
+        for f in cli_fields()
+        if f.metadata["group"] == "reading" and hasattr(args, f.name)
+    }
+    ev = evaluate(args.model, args.logs, Options(**reading), cutoff_hz=args.cutoff)
+    for line in ev.lines():
+        print(line)
+    paths = ev.write(args.out, plots=not args.no_plots)
+    print(
+        f"{len(ev.logs)} log(s), prepared at {ev.cutoff_hz:g} Hz, judged against the measured "
+        f"torque (unfiltered); written: {paths['json']}"
+    )
+    return 0
+
+
+def _evaluate_simulated(args) -> int:
     from .io import read_identified
     from .report import predicted_torques, torque_errors
     from .sim import generate_log, random_trajectory
@@ -253,12 +286,36 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
     """The ``evaluate`` sub-command's parser (runs `cmd_evaluate`)."""
     p = sub.add_parser(
         "evaluate",
-        help="evaluate an identified model on a simulated robot",
-        description="Predict the torques of a fresh noiseless trajectory of a simulated "
-        "robot and run computed-torque control with the model in MuJoCo.",
+        help="evaluate an identified model on logs (or on a simulated robot)",
+        description="Judge an identified model on logs it was not identified from: each log "
+        "read as identify reads it, its rest at the ends dropped, prepared at the model's own "
+        "cut-off (or --cutoff), and the predicted torques compared with the measured, "
+        "unfiltered torques; per-joint RMS and nMSE beside the description's, a figure per "
+        "log and evaluation.json. With --robot head|arm instead: the torques of a fresh "
+        "noiseless trajectory of the simulated robot and computed-torque control in MuJoCo.",
     )
     p.add_argument("model", help="model.npz written by identify")
-    p.add_argument("--robot", choices=_SIM_ROBOTS, required=True, help="the simulated robot")
+    p.add_argument(
+        "logs", nargs="*", metavar="LOG", help="logs to judge the model on (as identify reads)"
+    )
+    p.add_argument("--out", default="evaluation", help="output folder (with logs)")
+    p.add_argument(
+        "--cutoff",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="prepare the logs at this cut-off (default: the model's own)",
+    )
+    p.add_argument("--no-plots", action="store_true", help="write no figures (with logs)")
+    from .identification._options import GROUPS, cli_fields
+
+    reading = p.add_argument_group(GROUPS["reading"])
+    for f in cli_fields():
+        if f.metadata["group"] == "reading" and f.name != "max_seconds":
+            add_option(reading, f)
+    p.add_argument(
+        "--robot", choices=_SIM_ROBOTS, default=None, help="a simulated robot instead of logs"
+    )
     p.add_argument("--n-samples", type=int, default=8400, help="samples of the test trajectory")
     p.add_argument("--seed", type=int, default=100, help="seed of the test trajectory")
     p.add_argument("--no-control", action="store_true", help="skip the control run")

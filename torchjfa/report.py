@@ -309,6 +309,9 @@ class IdentificationReport:
         }
         if hasattr(est, "noise_y_"):
             extras["output_noise"] = float(est.noise_y_)
+        prep = self.settings.get("prepare") or {}
+        if isinstance(prep, Mapping) and prep.get("cutoff_hz") is not None:
+            extras["cutoff_hz"] = float(prep["cutoff_hz"])  # `torchjfa evaluate` prepares with it
         save_identified(paths["model"], self.model, self.result.theta, **extras)
         v = self.validation
         np.savez_compressed(

@@ -1,11 +1,14 @@
 """torchjfa.data: joint logs from files, and their preparation for identification.
 
 `JointLog` is the one log type (a `torchjfa.sim.SimulatedLog` is a `JointLog` plus its ground
-truth). `read_log` reads CSV, NPZ and Parquet logs into one; `prepare` resamples, filters,
+truth). `read_log` reads CSV, NPZ and Parquet logs and ROS bags into one (torques, or motor
+currents with drive gains; time in s, ms, us or ns); `prepare` resamples, filters,
 differentiates, trims and decimates it; `choose_cutoff` picks its filter's cut-off from the
 data; `differentiate` is the filter and derivatives alone;
-`check_log` finds logs that cannot identify anything (gaps, no motion, degrees, scrambled
-columns); `coverage` says where another log's motion goes beyond the identification log's;
+`motion_span` finds the standing still at a log's ends;
+`check_log` finds logs that cannot identify anything (gaps, no motion, degrees, velocities in
+deg/s, scrambled columns); `coverage` says where another log's motion goes beyond the
+identification log's;
 `regressor_noise` estimates the regression's input and output noise from repeated excitation
 periods; `signal_noise` estimates the sensors' noise from a raw log's spectrum and
 `propagated_noise` pushes it through the preparation and the regressor to the same noise for
@@ -41,6 +44,8 @@ from ._prepare import transient_periods as transient_periods
 from ._propagate import PropagatedNoise as PropagatedNoise
 from ._propagate import propagated_noise as propagated_noise
 from ._propagate import redrawn_logs as redrawn_logs
+from ._rest import RestSpan as RestSpan
+from ._rest import motion_span as motion_span
 from ._schema import KINDS as KINDS
 from ._schema import TIME_COLUMN as TIME_COLUMN
 from ._schema import LogError as LogError

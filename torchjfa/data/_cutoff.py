@@ -160,13 +160,7 @@ def choose_cutoff(
         f"chosen by held-out torque prediction over {grid[0]:g}..{grid[-1]:g} Hz "
         f"({len(grid)} cut-offs; OLS with the model's joint terms, {n_folds} blocks held out in "
         f"turn, {folds.reach:.3g} s apart from their fits, scored against the unfiltered "
-        f"torque): mean nMSE {shown}; "
-        + (
-            f"best {grid[best]:g} Hz"
-            if pick == best
-            else f"best {grid[best]:g} Hz, {grid[pick]:g} Hz the largest within one standard "
-            "error of it"
-        )
+        f"torque): mean nMSE {shown}; " + _verdict(grid, scores, se, best, pick)
     )
     chosen_v, v_scores = None, ()
     if widths != [None]:
@@ -317,6 +311,22 @@ def _one_standard_error(E: torch.Tensor, folds: _Folds):
     se = means.std(1) / math.sqrt(n_blocks)
     within = [i for i in range(len(folds.grid)) if float(scores[i] - scores[best]) <= float(se[i])]
     return scores, se, best, max(within)
+
+
+def _verdict(grid, scores, se, best: int, pick: int) -> str:
+    """How the rule chose: the best, the largest within one standard error of it, or, where
+    every cut-off lies within one standard error of the best, a tie that the rule breaks."""
+    if len(grid) > 1 and all(
+        float(scores[i] - scores[best]) <= float(se[i]) for i in range(len(grid))
+    ):
+        return (
+            "the log cannot tell these cut-offs apart (every score lies within one standard "
+            f"error of the best, {grid[best]:g} Hz); the rule takes the largest, "
+            f"{grid[pick]:g} Hz, which distorts the dynamics least"
+        )
+    if pick == best:
+        return f"best {grid[best]:g} Hz"
+    return f"best {grid[best]:g} Hz, {grid[pick]:g} Hz the largest within one standard error of it"
 
 
 def _widths(model, coulomb_grid) -> list:

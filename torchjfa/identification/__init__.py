@@ -5,8 +5,9 @@ chosen for real robots; the ``torchjfa identify`` command is that call, its flag
 from `Options`' fields. The stages, in order, each taking the previous one's output:
 
 1. `load_model`: the `RigidBodyModel` from a URDF / MJCF file or a robot's name;
-2. `read`: the raw log as a `torchjfa.data.JointLog`, checked (`RawLog`);
-3. `prepare_data`: cut-off, filter, derivatives, the held-out part (`PreparedData`);
+2. `read`: a raw log as a `torchjfa.data.JointLog`, checked (`RawLog`); one per log;
+3. `prepare_data`: the rest at the logs' ends dropped, the cut-off, filter, derivatives and
+   the held-out part of each log (`PreparedData`, one `LogPart` per log);
 4. `choose_noise`: joint weights and the regressor's input noise (`NoiseChoice`);
 5. `fit`: the training data's moments, the estimator and its jackknife
    (`IdentificationResult`); it also takes prepared logs (simulated ones, say) directly;
@@ -18,7 +19,8 @@ from `Options`' fields. The stages, in order, each taking the previous one's out
 `stream_moments` (the logs' `Moments`, streamed through the regressor) and
 `residual_joint_weights` are the building blocks of `fit` and `choose_noise`, for fitting
 several estimators on the same data; `signal_bootstrap` refits on re-drawn sensor noise for the
-spread of the unconstrained estimate.
+spread of the unconstrained estimate. `evaluate` judges an identified model on other logs
+(``torchjfa evaluate``), against the measured torque as `validate` does (`measured_torque`).
 """
 
 from .._result import IdentificationResult as IdentificationResult
@@ -28,6 +30,8 @@ from ._bias import correct_bias as correct_bias
 from ._bias import signal_bootstrap as signal_bootstrap
 from ._bias import simex_bias as simex_bias
 from ._consistent import make_consistent as make_consistent
+from ._evaluate import Evaluation as Evaluation
+from ._evaluate import evaluate as evaluate
 from ._fit import fit as fit
 from ._fit import make_estimator as make_estimator
 from ._identify import Identification as Identification
@@ -43,6 +47,7 @@ from ._options import IdentificationError as IdentificationError
 from ._options import IdentificationWarning as IdentificationWarning
 from ._options import Options as Options
 from ._options import joint_terms as joint_terms
+from ._prepare import LogPart as LogPart
 from ._prepare import PreparedData as PreparedData
 from ._prepare import prepare_data as prepare_data
 from ._prior import PRIOR_BLOCKS as PRIOR_BLOCKS
@@ -51,5 +56,7 @@ from ._prior import PRIOR_WEIGHTS as PRIOR_WEIGHTS
 from ._read import RawLog as RawLog
 from ._read import load_model as load_model
 from ._read import read as read
+from ._validate import HELD_OUT_TARGET as HELD_OUT_TARGET
 from ._validate import coverage_warnings as coverage_warnings
+from ._validate import measured_torque as measured_torque
 from ._validate import validate as validate

@@ -48,7 +48,7 @@ def signal_bootstrap(
 
     Args:
         model: the robot (`load_model`).
-        data: the `PreparedData` (with ``raw``, the raw log it was prepared from).
+        data: the `PreparedData` (with ``parts``, the raw logs it was prepared from).
         noise: the `NoiseChoice` of the fit (joint weights and input noise).
         options: the `Options` of the fit (the estimator and its options).
         n_draws: refits, at least 2.
@@ -65,24 +65,38 @@ def signal_bootstrap(
         torchjfa.data.LogError: when the raw log's noise cannot be read from its spectrum.
     """
     options = Options() if options is None else options
-    if data.raw is None:
-        raise IdentificationError("the bootstrap needs the raw log (PreparedData.raw)")
+    parts = data.training_parts
+    if not parts:
+        raise IdentificationError("the bootstrap needs the raw logs (PreparedData.parts)")
     if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
         raise IdentificationError(f"the bootstrap needs at least 2 draws, got {n_draws!r}")
+    if signal is not None and len(parts) > 1:
+        raise IdentificationError("signal= gives one log's sensor noise; the data hold several")
     model = data.model_for(model)  # the Coulomb term as the preparation chose it, as in `fit`
     estimator = make_estimator(options, noise.input_noise)
-    n_train = data.train.n_samples
     folds = max(int(options.jackknife), 2) if estimator.needs_folds else None
-    logs = redrawn_logs(
-        data.raw, data.preparation, noise=signal, n_draws=n_draws, seed=seed, lazy=True
-    )  # one noisy copy of the log in memory at a time
+    streams = [
+        redrawn_logs(
+            part.raw,
+            data.preparation,
+            noise=signal,
+            n_draws=n_draws,
+            seed=seed + 7919 * i,
+            lazy=True,
+        )  # fmt: skip
+        for i, part in enumerate(parts)
+    ]  # one noisy copy of each log in memory at a time
     with progress_bar(total=n_draws, desc="re-drawn noise", enabled=progress, unit="refit") as bar:
 
         def draws():
-            for log in logs:
+            for logs in zip(*streams, strict=True):
+                train = [
+                    log.select(slice(0, part.train.n_samples))
+                    for log, part in zip(logs, parts, strict=True)
+                ]
                 yield stream_moments(
                     model,
-                    log.select(slice(0, n_train)),
+                    train[0] if len(train) == 1 else train,
                     n_folds=folds,
                     joint_weights=noise.joint_weights,
                     chunk_size=options.compute.chunk_size,

@@ -6,20 +6,21 @@ from __future__ import annotations
 import os
 import time
 import warnings as _warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from .._result import IdentificationResult
+from ..data import JointLog
 from ..dynamics import RigidBodyModel
 from ..report import IdentificationReport, TorqueFit, estimator_text, verdict
 from ._bias import correct_bias
 from ._consistent import make_consistent
 from ._fit import fit
 from ._noise import NoiseChoice, choose_noise
-from ._options import IdentificationWarning, Options
+from ._options import IdentificationError, IdentificationWarning, Options
 from ._prepare import PreparedData, prepare_data
 from ._read import RawLog, load_model, read
 from ._validate import validate
@@ -33,7 +34,7 @@ class Identification:
 
     Attributes:
         model: the `RigidBodyModel`.
-        raw: the `RawLog` as read (joints in the model's order).
+        raw: the `RawLog` s as read (joints in the model's order), one per log.
         data: the `PreparedData` (training and held-out parts).
         noise: the `NoiseChoice` (joint weights, input noise).
         result: the `torchjfa.identification.IdentificationResult` (theta, the
@@ -44,7 +45,7 @@ class Identification:
     """
 
     model: RigidBodyModel
-    raw: RawLog
+    raw: list[RawLog]
     data: PreparedData
     noise: NoiseChoice
     result: IdentificationResult
@@ -78,9 +79,10 @@ class Identification:
             return None
         return (
             f"the identified model predicts the held-out torques worse than their mean (nMSE "
-            f"{self.validation_fit.mean_nmse:.3g}): this log does not identify "
+            f"{self.validation_fit.mean_nmse:.3g}): the logs do not identify "
             f"{self.report.settings.get('robot', 'the robot')} ({self.data.train.duration:.3g} s "
-            "of training data); record a longer or richer excitation"
+            "of training data); check the torque channels' signs and units (the warnings), "
+            "or record a longer or richer excitation"
         )
 
     def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
@@ -102,13 +104,14 @@ class Identification:
             f"identified {model.n_params} parameters of {self.report.settings.get('robot')} from "
             f"{self.data.train.n_samples} samples in {self.seconds:.1f} s; physically "
             f"consistent: {verdict(self.report.consistency)}",
-            f"held-out torque nMSE {fit.mean_nmse:.4g} (per joint: {per_joint})",
+            f"held-out torque nMSE {fit.mean_nmse:.4g} against the measured torque (per joint: "
+            f"{per_joint})",
         ]
 
 
 def identify(
     robot,
-    log,
+    logs,
     options: Options | None = None,
     *,
     validation_log=None,
@@ -126,10 +129,13 @@ def identify(
 
     Args:
         robot: a URDF / MJCF path, a shipped or simulated robot's name, or a `RigidBodyModel`.
-        log: the raw log: a CSV / NPZ / Parquet path (columns ``t, q_<joint>, [qd_<joint>],
-            tau_<joint>``; `torchjfa.data.read_log`) or a `torchjfa.data.JointLog`.
+        logs: the raw log, or a list of them (one identification from all, each prepared on
+            its own time base): CSV / NPZ / Parquet paths (columns ``t, q_<joint>,
+            [qd_<joint>], tau_<joint>`` or motor currents ``i_<joint>`` with
+            ``options.drive_gains``), ROS bags (``.bag``, ``.mcap``, ``.db3`` or a bag folder;
+            `torchjfa.data.read_log`) or `torchjfa.data.JointLog` s.
         options: `Options` (default: the defaults, chosen for real robots).
-        validation_log: a second raw log to hold out instead of the end of ``log``.
+        validation_log: raw logs (one or a list) to hold out instead of the end of each log.
         settings: more entries for the report's record (e.g. the command line).
 
     Returns:
@@ -142,9 +148,11 @@ def identify(
         torchjfa.data.LogError: on a log that cannot be read or identifies nothing.
     """
     options = Options() if options is None else options
-    model = load_model(robot, options.friction)
-    raw = read(log, model, options)
-    held = None if validation_log is None else read(validation_log, model, options)
+    model = load_model(robot, options.friction, options.fixed_joints)
+    raw = [read(log, model, options) for log in _several(logs)]
+    held = None
+    if validation_log is not None:
+        held = [read(log, model, options) for log in _several(validation_log)]
     data = prepare_data(model, raw, options, held)
     model = data.model_for(model)  # the Coulomb term as the preparation chose it
     noise = choose_noise(model, data, options)
@@ -156,7 +164,7 @@ def identify(
     seconds = time.perf_counter() - started
     record = {
         "robot": _name(robot),
-        "log": _name(log),
+        "log": ", ".join(_name(log) for log in _several(logs)),
         "validation": data.split,
         "preparation": data.describe(),
         "cutoff": f"{data.cutoff_hz:g} Hz, {data.cutoff_how}",
@@ -178,6 +186,17 @@ def identify(
     for line in out.warnings + ([problem] if problem else []):
         _warnings.warn(line, IdentificationWarning, stacklevel=2)
     return out
+
+
+def _several(logs) -> list:
+    """``logs`` as a list: one path or log, or a sequence of them."""
+    if isinstance(logs, str | os.PathLike | JointLog):
+        return [logs]
+    if isinstance(logs, Sequence) and not isinstance(logs, bytes):
+        if not logs:
+            raise IdentificationError("no log given")
+        return list(logs)
+    return [logs]
 
 
 def _name(thing) -> str:

@@ -78,7 +78,7 @@ def choose_noise(model: RigidBodyModel, data, options: Options | None = None) ->
 
     Raises:
         IdentificationError: ``input_noise="periods"`` without two excitation periods, or
-            ``"propagated"`` without the raw log (``data.raw``).
+            ``"propagated"`` without the raw logs (``data.parts``).
     """
     options = Options() if options is None else options
     prepared = isinstance(data, PreparedData)
@@ -166,19 +166,44 @@ def _takes_input_noise(estimator) -> bool:
 
 
 def _propagated(model: RigidBodyModel, data: PreparedData, weights, options: Options):
-    """`torchjfa.data.propagated_noise` of the training part of ``data``."""
-    if data.raw is None:
+    """`torchjfa.data.propagated_noise` of the training part of ``data``: with several logs,
+    each log's, averaged over their rows."""
+    parts = data.training_parts
+    if not parts:
         raise IdentificationError(
-            "the propagated noise needs the raw log the training data were prepared from "
-            "(PreparedData.raw, set by prepare_data)"
+            "the propagated noise needs the raw logs the training data were prepared from "
+            "(PreparedData.parts, set by prepare_data)"
         )
-    return propagated_noise(
-        model,
-        data.raw,
-        data.preparation,
-        joint_weights=weights,
-        samples=data.train.n_samples,
-        compiled=options.compute.compiled,
+    noises = [
+        propagated_noise(
+            model,
+            part.raw,
+            data.preparation,
+            joint_weights=weights,
+            samples=part.train.n_samples,
+            compiled=options.compute.compiled,
+        )
+        for part in parts
+    ]
+    return noises[0] if len(noises) == 1 else _pooled(noises)
+
+
+def _pooled(noises: list) -> object:
+    """Several logs' `torchjfa.data.PropagatedNoise` as one: the per-row averages weighted by
+    their rows (the Monte Carlo errors as those of a weighted mean)."""
+    w = torch.tensor([float(n.n_rows) for n in noises], dtype=torch.float64)
+    w = w / w.sum()
+
+    def mean(name):
+        return sum(wi * getattr(n, name) for wi, n in zip(w, noises, strict=True))
+
+    error = sum((wi * n.input_noise_error) ** 2 for wi, n in zip(w, noises, strict=True)).sqrt()
+    fields_ = ("input_noise", "output_noise", "output_noise_per_joint", "column_power")
+    return replace(
+        noises[0],
+        **{name: mean(name) for name in fields_},
+        input_noise_error=error,
+        n_rows=sum(n.n_rows for n in noises),
     )
 
 

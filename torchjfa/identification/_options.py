@@ -18,6 +18,7 @@ from ..data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
 from ..dynamics import FRICTION_KINDS
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
+from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
 
 if TYPE_CHECKING:
     from ..estimators import LinearEstimator
@@ -159,10 +160,19 @@ class Options:
     holds its flag and help).
 
     Reading (`torchjfa.data.read_log`):
-        columns: the library's column names -> the log's (``{"t": "time", ...}``), or None.
-        time_scale: seconds per unit of the log's time column (1e-9 for ns).
+        columns: the library's column names -> the log's (``{"t": "time", ...}``, or
+            patterns: ``{"q_{joint}": "pos_{joint}"}``), or None.
+        time_scale: seconds per unit of the log's time column (1e-9 for ns), or None: seconds,
+            with milliseconds, microseconds and nanoseconds recognised from the sampling rate
+            (the report says so).
         drop_nan: drop rows holding NaN instead of stopping.
-        max_seconds: use only the first this many seconds of the log (a quick check), or None.
+        max_seconds: use only the first this many seconds of each log (a quick check), or None.
+        drive_gains: N m/A per joint, to turn motor-current columns ``i_<joint>`` (A) into
+            joint torques: a sequence in the robot's joint order or ``{joint: gain}``; None for
+            logs of joint torques.
+        topic: the ``sensor_msgs/JointState`` topic of a ROS bag (default: the only one).
+        effort: what a ROS bag's ``effort`` holds: ``"torque"`` (N m) or ``"current"`` (A,
+            with ``drive_gains``).
 
     Preparation (`torchjfa.data.prepare`):
         cutoff: the zero-phase low-pass cut-off, Hz, or ``"auto"``
@@ -172,8 +182,10 @@ class Options:
         period: the excitation period, s, ``"auto"`` (detect) or None (none).
         skip_start: seconds of start-up transient to drop, or ``"auto"`` (needs a period).
         decimate: keep every k-th sample after filtering.
-        validation: the fraction held out at the end of the log (unless a validation log is
+        validation: the fraction held out at the end of each log (unless validation logs are
             given), with a gap of the filter's reach between the parts.
+        trim_rest: drop the standing still at the start and end of each log
+            (`torchjfa.data.motion_span`), keeping the filter's reach of it.
 
     The model's joint terms:
         friction: the joint terms (`JOINT_TERMS`: viscous, Coulomb and offset friction;
@@ -183,6 +195,8 @@ class Options:
         coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (its column
             ``tanh(qd / v_c)``; 0 is ``sign(qd)``), or ``"auto"``: chosen with the cut-off
             from `torchjfa.data.COULOMB_GRID` by the same held-out prediction.
+        fixed_joints: joints of the description held at q = 0 and treated as fixed (a gripper's
+            fingers, a mimic joint), for a robot given by file or name.
 
     Estimation:
         estimator: a name of `torchjfa.estimators.available` (`torchjfa.estimators.make`: the
@@ -230,8 +244,13 @@ class Options:
         help="map the library's column names to the log's: 't=time,q_j1=pos1' or a JSON "
         "object or file",
     )
-    time_scale: float = option(
-        1.0, group="reading", help="seconds per unit of the time column, e.g. 1e-9 for ns"
+    time_scale: float | None = option(
+        None,
+        group="reading",
+        parse=parse.positive,
+        metavar="S",
+        help="seconds per unit of the time column, e.g. 1e-9 for ns (default: seconds, with "
+        "ms, us and ns recognised from the sampling rate and stated in the report)",
     )
     drop_nan: bool = option(
         False, group="reading", help="drop rows holding NaN (default: report them and stop)"
@@ -241,7 +260,27 @@ class Options:
         group="reading",
         parse=parse.positive,
         metavar="S",
-        help="use only the first S seconds of the log (a quick check)",
+        help="use only the first S seconds of each log (a quick check)",
+    )
+    drive_gains: Sequence[float] | Mapping[str, float] | None = option(
+        None,
+        group="reading",
+        parse=parse.drive_gains,
+        metavar="G1,G2,...",
+        help="drive gains, N m/A, that turn motor-current columns i_<joint> (A) into joint "
+        "torques: one per joint in the robot's order, or joint=G,...",
+    )
+    topic: str | None = option(
+        None,
+        group="reading",
+        help="the sensor_msgs/JointState topic of a ROS bag (default: the only one)",
+    )
+    effort: str = option(
+        "torque",
+        group="reading",
+        choices=("torque", "current"),
+        help="what a ROS bag's effort field holds: joint torques (N m) or motor currents (A, "
+        "with --drive-gains)",
     )
     # preparation
     cutoff: float | str = option(
@@ -279,7 +318,13 @@ class Options:
     )
     decimate: int = option(1, group="preparation", help="keep every k-th sample after filtering")
     validation: float = option(
-        0.2, group="preparation", help="held-out fraction at the end of the log"
+        0.2, group="preparation", help="held-out fraction at the end of each log"
+    )
+    trim_rest: bool = option(
+        True,
+        group="preparation",
+        help="keep the standing still at the start and end of each log (default: drop it, "
+        "keeping the filter's reach)",
     )
     # the model's joint terms
     friction: tuple[str, ...] | None = option(
@@ -297,6 +342,14 @@ class Options:
         help="smoothing velocity of the Coulomb friction term, rad/s: its column is "
         "tanh(qd / V), sign(qd) for 0; 'auto' chooses it with the cut-off by the same "
         "held-out prediction, from " + ", ".join(f"{v:g}" for v in COULOMB_GRID),
+    )
+    fixed_joints: tuple[str, ...] = option(
+        (),
+        group="model",
+        parse=parse.names,
+        metavar="J1,J2",
+        help="joints of the description to hold at q = 0 as fixed (a gripper's fingers, mimic "
+        "joints), comma separated",
     )
     # estimation
     estimator: str | LinearEstimator = option(
@@ -372,9 +425,10 @@ class Options:
             choices = f.metadata.get("choices")
             value = getattr(self, f.name)
             if choices is not None and isinstance(value, str):
-                _choice(f.name, value, choices() if callable(choices) else choices)
-        _check_numbers(self)
-        _check_estimator_options(self)
+                choice(f.name, value, choices() if callable(choices) else choices)
+        check_numbers(self)
+        check_reading(self)
+        check_estimator_options(self)
         w = self.description_prior
         if w not in (None, "auto") and (
             isinstance(w, bool | str) or not 0 <= parse.number(w) < float("inf")
@@ -408,54 +462,6 @@ class Options:
     def replace(self, **changes) -> Options:
         """A copy with ``changes`` (``Options`` is frozen)."""
         return replace(self, **changes)
-
-
-def _check_numbers(o: Options) -> None:
-    """The numeric options' ranges."""
-    if o.cutoff != "auto" and not 0 < parse.number(o.cutoff) < float("inf"):
-        raise IdentificationError(f"cutoff must be 'auto' or a positive Hz, got {o.cutoff!r}")
-    v_c = o.coulomb_velocity
-    if v_c != "auto" and not 0 <= parse.number(v_c) < float("inf"):
-        raise IdentificationError(
-            f"coulomb_velocity must be 'auto' or a number >= 0, rad/s, got {v_c!r}"
-        )
-    if not 0.0 < parse.number(o.validation) < 1.0:
-        raise IdentificationError(f"validation must be a fraction in (0, 1), got {o.validation}")
-    if isinstance(o.decimate, bool) or not isinstance(o.decimate, int) or o.decimate < 1:
-        raise IdentificationError(f"decimate must be a whole number >= 1, got {o.decimate!r}")
-    k = o.jackknife
-    if isinstance(k, bool) or not isinstance(k, int) or k == 1 or k < 0:
-        raise IdentificationError(f"jackknife must be 0 (off) or at least 2 blocks, got {k!r}")
-    n = o.bias_correction
-    if n != "auto" and (isinstance(n, bool) or not isinstance(n, int) or n == 1 or n < 0):
-        raise IdentificationError(
-            f"bias_correction must be 'auto', 0 (off) or at least 2 refits, got {n!r}"
-        )
-
-
-def _check_estimator_options(o: Options) -> None:
-    """``estimator_options`` only with an estimator given by name, and only options it takes."""
-    if not o.estimator_options:
-        return
-    if not isinstance(o.estimator, str):
-        raise IdentificationError(
-            f"estimator_options {dict(o.estimator_options)} apply to an estimator given by "
-            f"name; the {type(o.estimator).__name__} given is used as it is (set its options "
-            "when you make it)"
-        )
-    from ..estimators import takes
-
-    bad = sorted(k for k in o.estimator_options if not takes(o.estimator, k))
-    if bad:
-        raise IdentificationError(
-            f"estimator {o.estimator!r} takes no option {', '.join(bad)} (see "
-            f"torchjfa.estimators.make({o.estimator!r}) for its options)"
-        )
-
-
-def _choice(name: str, value, allowed: Sequence[str]) -> None:
-    if value not in allowed:
-        raise IdentificationError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
 
 
 def cli_fields(cls=Options) -> list[Field]:

@@ -12,8 +12,8 @@ from pathlib import Path
 
 from ._errors import IdentificationError
 
-__all__ = ["auto_or", "columns", "estimator_options", "number", "positive", "prior", "refits",
-           "typed"]  # fmt: skip
+__all__ = ["auto_or", "columns", "drive_gains", "estimator_options", "names", "number",
+           "positive", "prior", "refits", "typed"]  # fmt: skip
 
 
 def typed(parse: Callable[[str], object]) -> Callable[[str], object]:
@@ -115,3 +115,35 @@ def columns(text: str) -> dict[str, str] | None:
 
 def estimator_options(text: str) -> dict[str, object]:
     return _mapping(text, "--estimator-options")
+
+
+def drive_gains(text: str) -> tuple[float, ...] | dict[str, float]:
+    """``--drive-gains``: ``G1,G2,...`` (N m/A in the robot's joint order) or
+    ``joint=G,...`` (by joint name), each a finite number > 0."""
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    if not items:
+        raise IdentificationError("--drive-gains: expected G1,G2,... or joint=G,...")
+    named = ["=" in s for s in items]
+    if any(named) and not all(named):
+        raise IdentificationError(
+            f"--drive-gains: give every gain by position (G1,G2,...) or every one by joint "
+            f"name (joint=G,...), not both: {text!r}"
+        )
+    pairs = [s.split("=", 1) if "=" in s else (None, s) for s in items]
+    values = {}
+    for k, v in pairs:
+        g = number(v)
+        if not 0 < g < float("inf"):
+            raise IdentificationError(f"--drive-gains: a gain must be a number > 0, got {v!r}")
+        values[k.strip() if k is not None else len(values)] = g
+    if all(named):
+        return {str(k): g for k, g in values.items()}
+    return tuple(values.values())
+
+
+def names(text: str) -> tuple[str, ...]:
+    """A comma-separated list of names (``--fixed-joints a,b``); empty or ``none``: none."""
+    text = text.strip()
+    if text.lower() in ("", "none"):
+        return ()
+    return tuple(s.strip() for s in text.split(",") if s.strip())

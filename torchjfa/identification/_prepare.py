@@ -1,16 +1,54 @@
-"""The `prepare_data` stage: the cut-off, the zero-phase filter, the derivatives and the
-held-out part of the log (`torchjfa.data.prepare`)."""
+"""The `prepare_data` stage: the rest at the logs' ends, the cut-off, the zero-phase filter,
+the derivatives and the held-out part of each log (`torchjfa.data.prepare`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import torch
 
 from ..data import DEFAULT_CUTOFF_HZ, JointLog, LogError, choose_cutoff, cutoff_grid, prepare
+from ..data._rest import RestSpan, motion_span
 from ..dynamics import RigidBodyModel
+from ._channels import channel_warnings
 from ._options import Options
 from ._read import RawLog, enough
 
-__all__ = ["PreparedData", "prepare_data"]
+__all__ = ["LogPart", "PreparedData", "concatenate", "prepare_data"]
+
+
+@dataclass
+class LogPart:
+    """One log of a `PreparedData`: where it came from and what was made of it.
+
+    Attributes:
+        source: the log's name (its path).
+        raw: the raw log its parts were prepared from (the rest at its ends dropped: its
+            prepared samples begin with ``train``).
+        info: what `torchjfa.data.prepare` did to it (rates, period, samples dropped).
+        train: its prepared training samples, or None (a validation log, or one too short to
+            identify from).
+        validation: its prepared held-out samples, or None.
+        rest_s: ``(start, end)`` seconds of standing still dropped at its ends.
+    """
+
+    source: str
+    raw: JointLog
+    info: dict
+    train: JointLog | None
+    validation: JointLog | None
+    rest_s: tuple[float, float] = (0.0, 0.0)
+
+    def describe(self) -> str:
+        """One line: the log, its samples for training and held out, the rest dropped."""
+        n_t = 0 if self.train is None else self.train.n_samples
+        n_v = 0 if self.validation is None else self.validation.n_samples
+        rest = ""
+        if any(self.rest_s):
+            rest = f"; standing still dropped: {self.rest_s[0]:.3g} s at the start, "
+            rest += f"{self.rest_s[1]:.3g} s at the end"
+        return f"{self.source}: {n_t} samples for training, {n_v} held out{rest}"
 
 
 @dataclass
@@ -18,17 +56,17 @@ class PreparedData:
     """What `prepare_data` returns: filtered, differentiated training and held-out data.
 
     Attributes:
-        train: the prepared `JointLog` (q, qd, qdd, tau) to identify from.
-        validation: the prepared held-out `JointLog`.
+        train: the prepared `JointLog` (q, qd, qdd, tau) to identify from: with several logs,
+            their training parts one after the other (its time runs on across them).
+        validation: the prepared held-out `JointLog`, the logs' held-out parts the same way.
         split: how the held-out part was chosen (for the report).
         cutoff_hz: the low-pass cut-off used, Hz.
         cutoff_how: how it was chosen.
         preparation: the keywords of `torchjfa.data.prepare` used.
-        info: what `prepare` did to the identification log (rates, period, samples dropped).
+        info: what `prepare` did to the (first) identification log (rates, period, samples
+            dropped).
         warnings: the stages' warnings so far (the logs' checks, the cut-off's choice).
-        raw: the raw identification log ``train`` was prepared from (its first
-            ``train.n_samples`` prepared samples are ``train``), or None; `choose_noise`
-            propagates its sensor noise (`torchjfa.data.propagated_noise`).
+        parts: one `LogPart` per log read, the identification logs first.
         coulomb_velocity: the Coulomb term's smoothing velocity the later stages fit with,
             rad/s (`RigidBodyModel.coulomb_velocity`; chosen with the cut-off under
             ``"auto"``); `model_for` applies it.
@@ -42,8 +80,20 @@ class PreparedData:
     preparation: dict
     info: dict
     warnings: list[str] = field(default_factory=list)
-    raw: JointLog | None = None
+    parts: list[LogPart] = field(default_factory=list)
     coulomb_velocity: float = 0.0
+
+    @property
+    def training_parts(self) -> list[LogPart]:
+        """The parts with training samples, in the order of ``train``."""
+        return [p for p in self.parts if p.train is not None]
+
+    @property
+    def raw(self) -> JointLog | None:
+        """The raw log ``train`` was prepared from (its first ``train.n_samples`` prepared
+        samples are ``train``) when it comes from one log, else None (see ``parts``)."""
+        parts = self.training_parts
+        return parts[0].raw if len(parts) == 1 else None
 
     def model_for(self, model: RigidBodyModel) -> RigidBodyModel:
         """``model`` with this preparation's Coulomb smoothing velocity (itself if it has it)."""
@@ -54,8 +104,10 @@ class PreparedData:
     def describe(self) -> str:
         """One line on what the preparation did."""
         info, prep = self.info, self.preparation
+        n_logs = len(self.training_parts)
+        logs = f"{n_logs} logs, the first: " if n_logs > 1 else ""
         return (
-            f"{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
+            f"{logs}{info['raw_samples']} samples at {info['raw_rate_hz']:.6g} Hz"
             + (", resampled" if info["resampled"] else "")
             + f"; {prep['method']} cut-off {self.cutoff_hz:g} Hz, velocities {info['velocity']}"
             + (f"; period {info['period_s']:.6g} s" if info["period_s"] else "; no period")
@@ -67,20 +119,45 @@ class PreparedData:
 
 def prepare_data(
     model: RigidBodyModel,
-    raw: RawLog,
+    raw: RawLog | Sequence[RawLog],
     options: Options | None = None,
-    validation: RawLog | None = None,
+    validation: RawLog | Sequence[RawLog] | None = None,
 ) -> PreparedData:
-    """Filter and differentiate the log (`torchjfa.data.prepare`) and hold part of it out.
+    """Filter and differentiate the logs (`torchjfa.data.prepare`) and hold part of them out.
 
-    The cut-off is ``options.cutoff``, or with ``"auto"`` the one `torchjfa.data.choose_cutoff`
-    finds on the part of the raw log the held-out data never reach. Without a ``validation``
-    log the last ``options.validation`` of the prepared log is held out, ``4 / cutoff`` s (the
-    filter's reach) apart from the training part.
+    Each log is prepared on its own time base with the same cut-off: ``options.cutoff``, or
+    with ``"auto"`` the one `torchjfa.data.choose_cutoff` finds on the longest log, on the part
+    of it the held-out data never reach. With ``options.trim_rest`` the standing still at each
+    log's ends is dropped first (`torchjfa.data.motion_span`), all but the filter's reach
+    (``4 / cutoff`` s), which the preparation drops anyway. Without ``validation`` logs the
+    last ``options.validation`` of each prepared log is held out, ``4 / cutoff`` s apart from
+    its training part, so that every log contributes to both; a log too short to split
+    trains only, and one too short to prepare is left out, each with a warning.
+
+    Args:
+        model: the robot (`load_model`).
+        raw: the `RawLog` of `read`, or several (one identification from all).
+        options: `Options`.
+        validation: logs to hold out instead of the ends of ``raw`` (one or several).
+
+    Raises:
+        LogError: on a log that cannot be prepared (the only one), or logs that leave no
+            training or no held-out samples.
     """
     options = Options() if options is None else options
-    warnings = list(raw.warnings)
-    cutoff, how, v_c = _cutoff(model, raw.log, options, validation is None, warnings)
+    raws = [raw] if isinstance(raw, RawLog) else list(raw)
+    held = [] if validation is None else (
+        [validation] if isinstance(validation, RawLog) else list(validation)
+    )  # fmt: skip
+    if not raws:
+        raise LogError("no log to identify from")
+    warnings = [w for r in raws + held for w in r.warnings]
+    spans = [_span(r.log, options) for r in raws]
+    longest = max(range(len(raws)), key=lambda i: raws[i].log.duration)
+    pick = _trim(raws[longest].log, spans[longest], 4.0 / _lowest(options))
+    cutoff, how, v_c = _cutoff(model, pick, options, not held, warnings)
+    if len(raws) > 1 and options.cutoff == "auto":
+        how += f" (on the longest log, {raws[longest].log.source})"
     prep = {
         "cutoff_hz": cutoff,
         "method": options.filter,
@@ -89,29 +166,122 @@ def prepare_data(
         "skip_start_s": options.skip_start,
         "decimate": options.decimate,
     }
-    data = prepare(raw.log, **prep)
-    if validation is not None:
-        warnings += validation.warnings
-        train, valid = data, prepare(validation.log, **{**prep, "skip_start_s": 0.0})
-        split = f"separate log {validation.log.source}"
+    single = len(raws) == 1 and not held
+    parts = [
+        _part(r.log, span, prep, cutoff, None if held else options.validation, single, warnings)
+        for r, span in zip(raws, spans, strict=True)
+    ]
+    valid_prep = {**prep, "skip_start_s": 0.0, "period_s": None}  # as `evaluate` prepares
+    parts += [
+        _part(r.log, _span(r.log, options), valid_prep, cutoff, 1.0, False, warnings) for r in held
+    ]
+    trains = [p.train for p in parts if p.train is not None]
+    valids = [p.validation for p in parts if p.validation is not None]
+    if not trains or not valids:
+        what = "training" if not trains else "held-out"
+        raise LogError(f"the logs leave no {what} samples after filtering (see the warnings)")
+    if held:
+        split = f"separate log{'s' if len(held) > 1 else ''} " + ", ".join(
+            r.log.source for r in held
+        )
     else:
-        # the gap keeps the filter's reach (4 / cutoff s) from linking the two parts
-        gap = int(4.0 / cutoff * data.info["rate_hz"])
-        train, valid = data.split(options.validation, gap=gap)
-        split = f"last {options.validation:.0%} of the log, {gap} samples apart"
+        gaps = "the filter's reach (4 / cut-off) apart"
+        each = "of each log" if len(raws) > 1 else "of the log"
+        split = f"last {options.validation:.0%} {each}, {gaps}"
+        if single:
+            gap = int(4.0 / cutoff * parts[0].info["rate_hz"])
+            split = f"last {options.validation:.0%} of the log, {gap} samples apart"
+    train = concatenate(trains)
     enough(train.n_samples, model, "after filtering and the validation split, training has")
+    for part in parts:
+        if part.train is not None:
+            warnings += channel_warnings(model, replace(part.train, source=part.source))
+    first = next(p for p in parts if p.train is not None)
     return PreparedData(
         train,
-        valid,
+        concatenate(valids),
         split,
         cutoff,
         how,
         prep,
-        dict(data.info),
+        dict(first.info),
         warnings,
-        raw=raw.log,
+        parts,
         coulomb_velocity=v_c,
     )
+
+
+def _lowest(options: Options) -> float:
+    """The lowest cut-off the preparation may use, Hz (the filter's reach is 4 / it)."""
+    return float(options.cutoff) if options.cutoff != "auto" else cutoff_grid()[0]
+
+
+def _span(log: JointLog, options: Options) -> RestSpan | None:
+    """Where ``log`` moves (None: keep it whole, ``trim_rest=False``)."""
+    if not options.trim_rest:
+        return None
+    span = motion_span(log)
+    if not span.moves:
+        raise LogError(f"{log.source}: no joint moves in the log: it identifies nothing")
+    return span
+
+
+def _trim(log: JointLog, span: RestSpan | None, keep_s: float) -> JointLog:
+    """``log`` less its rest, keeping ``keep_s`` seconds of it at each end."""
+    if span is None or (span.start == 0 and span.stop == log.n_samples):
+        return log
+    t = log.t
+    a = int(torch.searchsorted(t, t[span.start] - keep_s))
+    b = int(torch.searchsorted(t, t[span.stop - 1] + keep_s, right=True))
+    return log if (a, b) == (0, log.n_samples) else log.select(slice(a, b))
+
+
+def _part(log, span, prep, cutoff, fraction, single, warnings) -> LogPart:
+    """One log prepared (its rest dropped) and split: ``fraction`` None trains only, 1.0
+    holds it all out; ``single``: the only log, whose errors are raised."""
+    raw = _trim(log, span, 4.0 / cutoff)
+    rest = (0.0, 0.0) if span is None else (span.rest_start_s, span.rest_end_s)
+    try:
+        data = prepare(raw, **prep)
+    except LogError as exc:
+        if single:
+            raise
+        warnings.append(f"{exc}; the log is left out")
+        return LogPart(log.source, raw, {}, None, None, rest)
+    if fraction is None:
+        return LogPart(log.source, raw, dict(data.info), data, None, rest)
+    if fraction == 1.0:
+        return LogPart(log.source, raw, dict(data.info), None, data, rest)
+    gap = int(4.0 / cutoff * data.info["rate_hz"])
+    try:
+        train, valid = data.split(fraction, gap=gap)
+    except LogError as exc:
+        if single:
+            raise
+        warnings.append(f"{exc}; the whole log is used for training")
+        return LogPart(log.source, raw, dict(data.info), data, None, rest)
+    return LogPart(log.source, raw, dict(data.info), train, valid, rest)
+
+
+def concatenate(logs: Sequence[JointLog]) -> JointLog:
+    """Prepared logs one after the other, as one `JointLog` (the first's type and joints):
+    each next log's time starts one step (its own) after the last's end; ``period_samples``
+    is kept for one log only. One log is returned as it is."""
+    if len(logs) == 1:
+        return logs[0]
+    first = logs[0]
+    logs = [g.reorder(first.joint_names) for g in logs]
+    times, end = [], None
+    for g in logs:
+        t = g.t - g.t[0]
+        if end is not None:
+            step = float(torch.median(torch.diff(g.t))) if g.n_samples > 1 else 0.0
+            t = t + end + step
+        times.append(t)
+        end = float(t[-1])
+    arrays = {k: torch.cat([g._sample_arrays()[k] for g in logs]) for k in first._sample_arrays()}
+    t = torch.cat(times) + first.t[0]
+    return replace(first, t=t, period_samples=None, source=f"{len(logs)} logs", **arrays)
 
 
 def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings: list):

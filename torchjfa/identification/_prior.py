@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import torch
 
+from .._result import PRIOR_TOLERANCE as _PRIOR_TOLERANCE
 from ..estimators._jackknife import refit_totals, refit_without
 from ..physical import parameter_scales, unconstrained_projection
 from ..stats import Moments
@@ -38,7 +39,8 @@ __all__ = [
 #: ridge towards it, not only a tie-break): the held-out block decides whether that helps
 PRIOR_WEIGHTS = (0.0, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)
 #: "auto" takes the largest weight whose held-out error is within this fraction of the best
-PRIOR_TOLERANCE = 0.01
+#: (defined beside `IdentificationResult.prior_choice`, which the report reads with it)
+PRIOR_TOLERANCE = _PRIOR_TOLERANCE
 #: contiguous blocks of the training data for that choice when there are no others
 PRIOR_BLOCKS = 5
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,7 +17,9 @@ from ._options import DEFAULT_JOINT_TERMS, IdentificationError, Options, joint_t
 __all__ = ["RawLog", "load_model", "read", "enough", "joint_limits"]
 
 
-def load_model(robot, friction: Sequence[str] | None = None) -> RigidBodyModel:
+def load_model(
+    robot, friction: Sequence[str] | None = None, fixed_joints: Sequence[str] = ()
+) -> RigidBodyModel:
     """The `RigidBodyModel` of ``robot``: the first stage.
 
     Args:
@@ -26,6 +28,8 @@ def load_model(robot, friction: Sequence[str] | None = None) -> RigidBodyModel:
             (returned as it is).
         friction: the joint terms (`JOINT_TERMS`); None: `DEFAULT_JOINT_TERMS` for a file or
             a name, the model's own for a `RigidBodyModel`.
+        fixed_joints: joints of a URDF description held at q = 0 as fixed (a gripper's
+            fingers, mimic joints).
 
     Raises:
         IdentificationError: on a missing file or one that does not give a model, or joint
@@ -36,6 +40,11 @@ def load_model(robot, friction: Sequence[str] | None = None) -> RigidBodyModel:
             raise IdentificationError(
                 f"the model given has the joint terms {tuple(robot.friction)}, not "
                 f"{tuple(friction)}: build it with those terms, or leave friction at None"
+            )
+        if fixed_joints:
+            raise IdentificationError(
+                "fixed_joints apply to a robot read from a description; build the "
+                "RigidBodyModel given with them instead"
             )
         return robot
     from .. import robots
@@ -55,9 +64,16 @@ def load_model(robot, friction: Sequence[str] | None = None) -> RigidBodyModel:
                 f"{sorted(set(robots.available()) | set(robots.SIMULATED))})"
             )
         fmt = "urdf" if path.lower().endswith(".urdf") else "mjcf"
+    if fixed_joints and fmt != "urdf":
+        raise IdentificationError(
+            f"fixed_joints apply to URDF descriptions; {path!r} is MJCF: fix the joints in the "
+            "file (remove them, or give them a range of zero)"
+        )
     try:
         if fmt == "urdf":
-            return RigidBodyModel.from_urdf(path, friction=tuple(friction))
+            return RigidBodyModel.from_urdf(
+                path, friction=tuple(friction), fixed_joints=tuple(fixed_joints)
+            )
         return RigidBodyModel.from_mjcf(path, friction=tuple(friction))
     except Exception as exc:  # the parsers raise many kinds; all mean "this file is not usable"
         raise IdentificationError(
@@ -91,12 +107,7 @@ def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLo
     if isinstance(source, JointLog):
         log = source
     else:
-        log = read_log(
-            source,
-            columns=None if options.columns is None else dict(options.columns),
-            time_scale=options.time_scale,
-            drop_nan=options.drop_nan,
-        )
+        log = read_log(source, **_reading(options, model))
     log = log.reorder(model.joint_names)
     enough(log.n_samples, model, "the log has")
     problems = check_log(log, limits=joint_limits(model))
@@ -106,7 +117,39 @@ def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLo
     if options.max_seconds is not None:  # the first seconds only
         keep = int(torch.searchsorted(log.t, log.t[0] + options.max_seconds)) + 1
         log = log.select(slice(0, min(keep, log.n_samples)))
-    return RawLog(log, [p.message for p in problems])
+    notes = [f"{log.source}: {n}" for n in log.info.get("read_notes", [])]
+    return RawLog(log, notes + [p.message for p in problems])
+
+
+def _reading(options: Options, model: RigidBodyModel) -> dict:
+    """The keywords of `torchjfa.data.read_log` that ``options`` set."""
+    kw: dict = {
+        "columns": None if options.columns is None else dict(options.columns),
+        "drop_nan": options.drop_nan,
+    }
+    if options.time_scale is not None:
+        kw["time_scale"] = options.time_scale
+    if options.topic is not None or options.effort != "torque":
+        kw["topic"], kw["effort"] = options.topic, options.effort
+    gains = options.drive_gains
+    if gains is not None:
+        if not isinstance(gains, Mapping):
+            gains = list(gains)
+            if len(gains) != model.n_dof:
+                raise IdentificationError(
+                    f"{len(gains)} drive gains for the {model.n_dof} joints "
+                    f"{', '.join(model.joint_names)}: give one per joint in this order, or "
+                    "joint=G,..."
+                )
+            gains = dict(zip(model.joint_names, gains, strict=True))
+        unknown = sorted(set(gains) - set(model.joint_names))
+        if unknown:
+            raise IdentificationError(
+                f"drive gains for {unknown}, which are not joints of the model "
+                f"({', '.join(model.joint_names)})"
+            )
+        kw["drive_gains"] = {k: float(v) for k, v in gains.items()}
+    return kw
 
 
 def enough(n_samples: int, model: RigidBodyModel, where: str) -> None:

@@ -1,0 +1,198 @@
+"""`evaluate`: an identified model judged on logs it was not identified from.
+
+Each log is read as `identify` reads it (`read`: the same reading options, currents with their
+drive gains, ROS bags), its rest at the ends dropped, and prepared with one cut-off for every
+model judged (the identification's own, stored in its ``model.npz``, unless one is given): the
+prediction uses the prepared q, qd, qdd; the target is the measured torque, unfiltered
+(`torchjfa.identification.measured_torque`), so that models identified with different cut-offs
+are judged on the same target. The description's parameters (its inertials, no joint terms)
+are judged beside the identified ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import torch
+
+from ..data import DEFAULT_CUTOFF_HZ, JointLog, LogError, prepare
+from ..dynamics import RigidBodyModel
+from ..report import TorqueFit, predicted_torques, torque_errors
+from ._options import IdentificationError, Options
+from ._prepare import _span, _trim, concatenate
+from ._read import read
+from ._validate import measured_torque
+
+__all__ = ["Evaluation", "evaluate"]
+
+
+@dataclass(eq=False)
+class Evaluation:
+    """What `evaluate` returns.
+
+    Attributes:
+        model: the identified model's `RigidBodyModel`.
+        theta: ``(n_params,)`` its parameters.
+        cutoff_hz: the cut-off the logs were prepared with, Hz.
+        logs: ``source -> (prepared log with the measured torque as tau, fits)`` per log, the
+            fits by name (``"identified"``, and ``"description"`` when the description has
+            mass).
+        fits: the same fits over all the logs' samples together.
+    """
+
+    model: RigidBodyModel
+    theta: torch.Tensor
+    cutoff_hz: float
+    logs: dict[str, tuple[JointLog, dict[str, TorqueFit]]]
+    fits: dict[str, TorqueFit]
+
+    def summary(self) -> dict[str, object]:
+        """The numbers as JSON-ready values: ``joint_names``, ``rms``, ``mean_rms``, ``nmse``,
+        ``mean_nmse`` (the identified model over all logs), the same under ``description``,
+        and per log under ``logs``."""
+
+        def numbers(fit: TorqueFit) -> dict[str, object]:
+            return {
+                "rms": [float(x) for x in fit.rms],
+                "mean_rms": float(fit.rms.mean()),
+                "nmse": [float(x) for x in fit.nmse],
+                "mean_nmse": float(fit.nmse.mean()),
+            }
+
+        out: dict[str, object] = {"joint_names": list(self.model.joint_names)}
+        out.update(numbers(self.fits["identified"]))
+        if "description" in self.fits:
+            out["description"] = numbers(self.fits["description"])
+        out["cutoff_hz"] = self.cutoff_hz
+        out["target"] = "the measured torque, unfiltered"
+        out["logs"] = [
+            {
+                "log": source,
+                "samples": log.n_samples,
+                **numbers(fits["identified"]),
+                **({"description": numbers(fits["description"])} if "description" in fits else {}),
+            }
+            for source, (log, fits) in self.logs.items()
+        ]
+        return out
+
+    def lines(self) -> list[str]:
+        """A per-joint table of RMS and nMSE, the description's beside the identified model's."""
+        names = list(self.fits)
+        head = f"{'joint':<22}" + "".join(f"{n + ' RMS':>18}{n + ' nMSE':>18}" for n in names)
+        rows = [head]
+        for j, joint in enumerate(self.model.joint_names):
+            cells = "".join(
+                f"{float(self.fits[n].rms[j]):>18.4g}{float(self.fits[n].nmse[j]):>18.4g}"
+                for n in names
+            )
+            rows.append(f"{joint:<22}" + cells)
+        rows.append(
+            f"{'mean':<22}"
+            + "".join(
+                f"{float(self.fits[n].rms.mean()):>18.4g}{self.fits[n].mean_nmse:>18.4g}"
+                for n in names
+            )
+        )
+        return rows
+
+    def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
+        """``evaluation.json`` and, with ``plots``, one figure of measured and predicted torques
+        per log (``torques_<i>.png``) in ``out_dir``; returns the paths."""
+        from .._report_figures import torques_figure
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {"json": out / "evaluation.json"}
+        paths["json"].write_text(json.dumps(self.summary(), indent=1))
+        if plots:
+            import matplotlib.pyplot as plt
+
+            kinds = dict(zip(self.model.joint_names, self.model.joint_types, strict=True))
+            for i, (_, (log, fits)) in enumerate(self.logs.items()):
+                paths[f"torques_{i}"] = out / f"torques_{i}.png"
+                fig = torques_figure(log, fits, kinds, paths[f"torques_{i}"], seconds=10.0)
+                plt.close(fig)
+        return paths
+
+
+def evaluate(
+    identified,
+    logs,
+    options: Options | None = None,
+    *,
+    cutoff_hz: float | None = None,
+) -> Evaluation:
+    """Judge an identified model on logs: per-joint RMS and nMSE against the measured torque.
+
+    Args:
+        identified: a ``model.npz`` path (`torchjfa.io.read_identified`), or a
+            ``(RigidBodyModel, theta)`` pair.
+        logs: a log or a list of logs, as `torchjfa.identify` takes them; each is used whole
+            (less the rest at its ends with ``options.trim_rest``).
+        options: the reading and preparation options (`Options`: columns, time scale, drive
+            gains, ROS topic and effort, filter, velocity); the estimation options do not
+            apply.
+        cutoff_hz: the cut-off to prepare the logs with, Hz (default: the one stored with the
+            model, else `torchjfa.data.DEFAULT_CUTOFF_HZ`).
+
+    Raises:
+        IdentificationError: on a model file that cannot be read, or logs of other joints.
+        LogError: on a log that cannot be read or prepared.
+    """
+    options = Options() if options is None else options
+    model, theta, stored = _identified(identified)
+    cutoff = float(cutoff_hz if cutoff_hz is not None else stored or DEFAULT_CUTOFF_HZ)
+    if not 0 < cutoff < float("inf"):
+        raise IdentificationError(f"the cut-off must be a positive number of Hz, got {cutoff}")
+    prep = {"cutoff_hz": cutoff, "method": options.filter, "velocity": options.velocity,
+            "period_s": None, "decimate": options.decimate}  # fmt: skip
+    params = {"identified": theta}
+    if bool((model.nominal_theta != 0).any()):
+        params["description"] = model.nominal_theta.to(theta)
+    per_log = {}
+    for source in [logs] if isinstance(logs, str | os.PathLike | JointLog) else list(logs):
+        raw = read(source, model, options).log
+        raw = _trim(raw, _span(raw, options), 4.0 / cutoff)
+        try:
+            data = prepare(raw, **prep)
+        except LogError as exc:
+            raise LogError(f"{raw.source}: cannot be prepared for the evaluation: {exc}") from None
+        log = replace(data, tau=measured_torque(raw, data.t))
+        name = raw.source if raw.source not in per_log else f"{raw.source} ({len(per_log)})"
+        per_log[name] = (log, _fits(model, params, log))
+    if not per_log:
+        raise IdentificationError("no log to evaluate on")
+    everything = concatenate([log for log, _ in per_log.values()])
+    return Evaluation(model, theta, cutoff, per_log, _fits(model, params, everything))
+
+
+def _fits(model, params, log: JointLog) -> dict[str, TorqueFit]:
+    out = {}
+    for name, theta in params.items():
+        pred = predicted_torques(model, theta, log.q, log.qd, log.qdd, log.tau)
+        nmse, rms = torque_errors(log.tau, pred)
+        out[name] = TorqueFit(nmse=nmse, rms=rms, predicted=pred)
+    return out
+
+
+def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float | None]:
+    """``(model, theta, stored cut-off or None)`` of a model file or a pair."""
+    if isinstance(identified, Sequence) and not isinstance(identified, str):
+        model, theta = identified
+        return model, torch.as_tensor(theta, dtype=torch.float64), None
+    from ..io import read_identified
+
+    path = os.fspath(identified)
+    if not os.path.isfile(path):
+        raise IdentificationError(f"no model file {path!r}")
+    try:
+        ident = read_identified(path)
+    except ValueError as exc:  # not a model file, or a damaged one: the message says which
+        raise IdentificationError(f"{path}: {exc}") from None
+    stored = ident.extras.get("cutoff_hz")
+    return ident.model, ident.theta.to(torch.float64), None if stored is None else float(stored)
