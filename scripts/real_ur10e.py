@@ -212,9 +212,11 @@ def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | N
     print(
         f"defaults / hand-tuned mean RMS: {ratio:.3f} (goal <= {GOAL_RATIO}); physically "
         f"consistent: {consistent}; identify took {seconds:.1f} s "
-        f"(cut-off {ident.data.cutoff_hz:g} Hz)",
+        f"(cut-off {ident.data.cutoff_hz:g} Hz; joint terms {', '.join(ident.model.friction)})",
         file=out,
     )
+    if ident.data.joint_terms_how:
+        print(f"armature: {ident.data.joint_terms_how}", file=out)
     return {
         "ratio": ratio,
         "consistent": consistent,

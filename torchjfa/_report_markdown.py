@@ -173,6 +173,7 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
         + (f" ({settings['validation']})" if settings.get("validation") else ""),
         *([f"- data: {settings['preparation']}"] if settings.get("preparation") else []),
         *([f"- cut-off: {settings['cutoff']}"] if settings.get("cutoff") else []),
+        *([f"- armature: {settings['armature']}"] if settings.get("armature") else []),
         *(
             [f"- bias correction: {settings['bias_correction']}"]
             if settings.get("bias_correction")

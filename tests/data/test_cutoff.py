@@ -139,3 +139,27 @@ def test_the_coulomb_velocity_is_kept_where_there_is_none_to_choose():
     assert plain.coulomb_velocity is None
     with pytest.raises(ValueError, match="coulomb_velocity"):
         choose_cutoff(_Dry(), log, grid_hz=(16.0,), coulomb_grid=(0.05, -1.0))
+
+
+def test_a_tie_among_every_cutoff_is_said_so_and_the_rule_breaks_it():
+    """Where every cut-off scores within one standard error of the best, the text says the log
+    cannot tell them apart (no story of a winner); otherwise it names the best."""
+    from torchjfa.data._cutoff import _verdict
+
+    grid = (2.0, 5.0, 10.0)
+    tied = _verdict(grid, torch.tensor([0.393, 0.3931, 0.3932]), torch.full((3,), 1e-3), 0, 2)
+    assert "cannot tell" in tied and "the largest, 10 Hz" in tied
+    clear = _verdict(grid, torch.tensor([0.3, 0.5, 0.9]), torch.tensor([0.0, 0.01, 0.01]), 0, 0)
+    assert "cannot tell" not in clear and clear == "best 2 Hz"
+
+
+def test_a_tie_among_the_prior_weights_is_said_so():
+    from types import SimpleNamespace
+
+    from torchjfa._report_markdown import _prior_note
+
+    tied = SimpleNamespace(prior_weight=1e5, prior_choice={0.0: 0.1283, 100.0: 0.1283, 1e5: 0.1283})
+    text = " ".join(_prior_note(tied))
+    assert "cannot tell the weights apart" in text and "prefer the description" not in text
+    clear = SimpleNamespace(prior_weight=1e5, prior_choice={0.0: 0.2, 100.0: 0.15, 1e5: 0.1})
+    assert "cannot tell" not in " ".join(_prior_note(clear))

@@ -160,6 +160,11 @@ def test_a_mimic_joint_is_refused_and_the_message_says_what_to_do(tmp_path):
     with pytest.raises(cli.UsageError, match="mimics") as info:
         cli.load_model(str(path), ("viscous",))
     assert "\n" not in str(info.value)  # one line on the command line
+    assert "--fixed-joints f2,f1" in str(info.value)
+    from torchjfa.identification import load_model
+
+    held = load_model(str(path), ("viscous",), fixed_joints=("f2", "f1"))
+    assert held.joint_names == ("j1",)
     # a <mimic> on a fixed joint couples nothing: accepted (talos' grippers have such joints)
     fixed_mimic = MIMIC.replace('name="f2" type="prismatic"', 'name="f2" type="fixed"')
     assert RigidBodyModel.from_urdf(fixed_mimic).joint_names == ("j1", "f1")

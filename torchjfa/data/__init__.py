@@ -23,6 +23,7 @@ from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage
 from ._cutoff import COULOMB_GRID as COULOMB_GRID
 from ._cutoff import CutoffChoice as CutoffChoice
+from ._cutoff import armature_helps as armature_helps
 from ._cutoff import choose_cutoff as choose_cutoff
 from ._cutoff import cutoff_grid as cutoff_grid
 from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ

@@ -43,7 +43,7 @@ from ..dynamics._parameters import check_coulomb_velocity
 from ._log import JointLog, LogError
 from ._prepare import is_uniform, prepare, resample
 
-__all__ = ["COULOMB_GRID", "CutoffChoice", "choose_cutoff", "cutoff_grid"]
+__all__ = ["COULOMB_GRID", "CutoffChoice", "armature_helps", "choose_cutoff", "cutoff_grid"]
 
 #: The Coulomb term's smoothing velocities `choose_cutoff` tries by default, rad/s (0: sign).
 COULOMB_GRID = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2)
@@ -185,6 +185,65 @@ def choose_cutoff(
         coulomb_grid=() if chosen_v is None else tuple(widths),
         coulomb_scores=tuple(v_scores),
     )
+
+
+def armature_helps(
+    model,
+    log: JointLog,
+    cutoff_hz: float,
+    *,
+    method: str = "butterworth",
+    velocity: str = "auto",
+    n_folds: int = 5,
+    compiled: bool | None = None,
+) -> tuple[bool, str]:
+    """Whether the motor's reflected inertia (the joint term ``"armature"``, a column ``qdd``
+    per joint) predicts held-out torques better than the model without it.
+
+    The same held-out blocks as `choose_cutoff` at ``cutoff_hz`` (ordinary least squares on
+    the other blocks, the filter's reach apart, scored against the unfiltered torque); the
+    armature is taken only where it wins by more than one standard error of the difference
+    (from contiguous blocks of the held-out samples): a term the data cannot tell from none is
+    left out. On geared arms the rotor inertia is a large part of the torque (the motor's
+    inertia times the gear ratio squared); behind link-side torque sensors it is not seen.
+
+    Args:
+        model: the robot without the armature term.
+        log: the raw training log, as for `choose_cutoff`.
+        cutoff_hz: the cut-off the identification prepares with, Hz.
+        method, velocity, n_folds, compiled: as for `choose_cutoff`.
+
+    Returns:
+        ``(helps, how)``: whether to add the term, and one line for the report.
+
+    Raises:
+        LogError: a log too short for the blocks, as `choose_cutoff`.
+    """
+    if "armature" in model.friction:
+        return True, "given"
+    grid = _check_arguments(model, log, (cutoff_hz,), n_folds)
+    folds = _Folds.of(log, grid, n_folds, method, velocity, None, None)
+    other = model.with_joint_terms((*model.friction, "armature"))
+    without, with_ = (_score(m, folds, grid[0], [None], compiled)[0] for m in (model, other))
+    gain, se = _difference(without - with_, folds)
+    helps = gain > se
+    how = (
+        f"held-out torque prediction at {grid[0]:g} Hz (OLS, {n_folds} blocks held out in turn, "
+        f"against the unfiltered torque): mean nMSE {float(without.mean()):.4g} without the "
+        f"motor's armature, {float(with_.mean()):.4g} with it (standard error of the "
+        f"difference {se:.2g}): "
+        + ("armature added" if helps else "left out (it does not win by a standard error)")
+    )
+    return helps, how
+
+
+def _difference(d: torch.Tensor, folds: _Folds) -> tuple[float, float]:
+    """The mean of per-sample differences ``d (n,)`` and its standard error from contiguous
+    blocks of about 0.5 s (as `_one_standard_error`)."""
+    n = d.shape[0]
+    n_blocks = max(2, min(20, n // max(1, int(0.5 * folds.rate / folds.k))))
+    means = torch.stack([b.mean() for b in torch.tensor_split(d, n_blocks)])
+    return float(d.mean()), float(means.std() / math.sqrt(n_blocks))
 
 
 def _check_arguments(model, log: JointLog, grid_hz, n_folds) -> list[float]:

@@ -254,16 +254,18 @@ class RigidBodyModel(FrameKinematics):
         )
 
     def with_coulomb_velocity(self, coulomb_velocity: float) -> RigidBodyModel:
-        """The same robot and parameter layout with the Coulomb column ``tanh(qd / v_c)``.
-
-        Args:
-            coulomb_velocity: ``v_c`` >= 0, rad/s (m/s prismatic); 0 gives ``sign(qd)``.
-
-        Returns:
-            A new `RigidBodyModel` sharing this one's description (and its compiled kernels).
-        """
+        """A new `RigidBodyModel`, the same robot, parameter layout and compiled kernels, with
+        the Coulomb column ``tanh(qd / v_c)``, ``coulomb_velocity`` = ``v_c`` >= 0, rad/s (m/s
+        prismatic); 0 gives ``sign(qd)``."""
         other = copy.copy(self)
         other.coulomb_velocity = check_coulomb_velocity(coulomb_velocity)
+        return other
+
+    def with_joint_terms(self, friction: str | Sequence[str]) -> RigidBodyModel:
+        """The same robot with other joint terms (`FRICTION_KINDS`), its Coulomb velocity kept."""
+        other = copy.copy(self)
+        other.layout = ParameterLayout(self._tree.joint_names, friction_kinds(friction))
+        other._kernels = {}  # the compiled kernel holds the joint terms
         return other
 
     # ------------------------------------------------------------------ regressor

@@ -265,8 +265,9 @@ def _check_moving(joints: dict[str, ET.Element], where: str) -> None:
         raise ValueError(
             f"{where}: {len(mimics)} mimic joint(s) (a <mimic> element: the position follows "
             f"another joint's): {pairs}; coupled joints are not supported. Pass "
-            f"fixed_joints={lock!r} to hold them at q = 0 (their links are lumped into the "
-            "parent), or delete the <mimic> elements to identify each as an independent joint"
+            f"fixed_joints={lock!r} (on the command line: --fixed-joints {','.join(lock)}) to "
+            "hold them at q = 0 (their links are lumped into the parent), or delete the <mimic> "
+            "elements to identify each as an independent joint"
         )
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from .._progress import progress_bar
 from .._result import IdentificationResult
 from ..data import JointLog
 from ..dynamics import RigidBodyModel
@@ -148,27 +149,55 @@ def identify(
         torchjfa.data.LogError: on a log that cannot be read or identifies nothing.
     """
     options = Options() if options is None else options
-    model = load_model(robot, options.friction, options.fixed_joints)
-    raw = [read(log, model, options) for log in _several(logs)]
-    held = None
-    if validation_log is not None:
-        held = [read(log, model, options) for log in _several(validation_log)]
-    data = prepare_data(model, raw, options, held)
-    model = data.model_for(model)  # the Coulomb term as the preparation chose it
-    noise = choose_noise(model, data, options)
-    started = time.perf_counter()
-    result = fit(model, data, noise, options)
-    result = correct_bias(result, data, noise, options)
-    if options.project:
-        result = make_consistent(result, options)
-    seconds = time.perf_counter() - started
-    record = {
+    logs = _several(logs)
+    held_logs = [] if validation_log is None else _several(validation_log)
+    with progress_bar(total=len(STAGES), desc="identify", enabled=options.compute.progress,
+                      unit="stage") as bar:  # fmt: skip
+        names = iter(enumerate(STAGES))
+
+        def stage() -> None:  # the next of `STAGES`
+            k, name = next(names)
+            bar.update(1 if k else 0)
+            bar.set_description_str(f"identify: {name}")
+
+        stage()
+        model = load_model(robot, options.friction, options.fixed_joints)
+        raw = [read(log, model, options) for log in logs]
+        held = [read(log, model, options) for log in held_logs] or None
+        stage()
+        data = prepare_data(model, raw, options, held)
+        model = data.model_for(model)  # the Coulomb term as the preparation chose it
+        stage()
+        noise = choose_noise(model, data, options)
+        started = time.perf_counter()
+        stage()
+        result = fit(model, data, noise, options)
+        stage()
+        result = correct_bias(result, data, noise, options)
+        stage()
+        if options.project:
+            result = make_consistent(result, options)
+        seconds = time.perf_counter() - started
+        stage()
+        record = _record(robot, logs, data, noise, result, options, seconds, settings)
+        report = validate(result, data, noise, record)
+    out = Identification(model, raw, data, noise, result, report, options, seconds)
+    problem = out.problem()
+    for line in out.warnings + ([problem] if problem else []):
+        _warnings.warn(line, IdentificationWarning, stacklevel=2)
+    return out
+
+
+def _record(robot, logs, data, noise, result, options, seconds, settings) -> dict:
+    """The report's record of how the identification ran."""
+    return {
         "robot": _name(robot),
-        "log": ", ".join(_name(log) for log in _several(logs)),
+        "log": ", ".join(_name(log) for log in logs),
         "validation": data.split,
         "preparation": data.describe(),
         "cutoff": f"{data.cutoff_hz:g} Hz, {data.cutoff_how}",
         "coulomb_velocity": data.coulomb_velocity,
+        **({"armature": data.joint_terms_how} if data.joint_terms_how else {}),
         "prepare": dict(data.preparation),
         "data": dict(data.info),
         "identify_seconds": seconds,
@@ -180,12 +209,18 @@ def identify(
         "bias_correction": _bias_text(result, options),
         "warnings": data.warnings + noise.warnings + result.warnings,
     }
-    report = validate(result, data, noise, record)
-    out = Identification(model, raw, data, noise, result, report, options, seconds)
-    problem = out.problem()
-    for line in out.warnings + ([problem] if problem else []):
-        _warnings.warn(line, IdentificationWarning, stacklevel=2)
-    return out
+
+
+#: the stages `identify` runs, as its progress bar names them
+STAGES = (
+    "reading the logs",
+    "preparing (cut-off, filter, derivatives)",
+    "choosing the noise",
+    "fitting",
+    "correcting the bias",
+    "projecting onto consistent parameters",
+    "validating",
+)
 
 
 def _several(logs) -> list:

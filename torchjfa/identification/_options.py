@@ -191,10 +191,13 @@ class Options:
         friction: the joint terms (`JOINT_TERMS`: viscous, Coulomb and offset friction;
             ``"armature"``, the motor's reflected inertia); None: `DEFAULT_JOINT_TERMS` for a
             robot given by file or name, the model's own for a `RigidBodyModel` (whose terms
-            a different tuple contradicts: an error).
+            a different tuple contradicts: an error), and the armature as ``armature`` says.
         coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (its column
             ``tanh(qd / v_c)``; 0 is ``sign(qd)``), or ``"auto"``: chosen with the cut-off
             from `torchjfa.data.COULOMB_GRID` by the same held-out prediction.
+        armature: ``"auto"``: with ``friction=None``, the motor's reflected inertia is added
+            where it predicts held-out torques within the training part better than without,
+            by more than a standard error (`torchjfa.data.armature_helps`); ``"off"``: not.
         fixed_joints: joints of the description held at q = 0 and treated as fixed (a gripper's
             fingers, a mimic joint), for a robot given by file or name.
 
@@ -342,6 +345,14 @@ class Options:
         help="smoothing velocity of the Coulomb friction term, rad/s: its column is "
         "tanh(qd / V), sign(qd) for 0; 'auto' chooses it with the cut-off by the same "
         "held-out prediction, from " + ", ".join(f"{v:g}" for v in COULOMB_GRID),
+    )
+    armature: str = option(
+        "auto",
+        group="model",
+        choices=("auto", "off"),
+        help="the motor's reflected inertia (armature) with the default joint terms: 'auto' "
+        "adds it where it predicts held-out torques within the training part better by a "
+        "standard error (geared arms), 'off' leaves it out; --friction ...,armature forces it",
     )
     fixed_joints: tuple[str, ...] = option(
         (),

@@ -8,7 +8,15 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
-from ..data import DEFAULT_CUTOFF_HZ, JointLog, LogError, choose_cutoff, cutoff_grid, prepare
+from ..data import (
+    DEFAULT_CUTOFF_HZ,
+    JointLog,
+    LogError,
+    armature_helps,
+    choose_cutoff,
+    cutoff_grid,
+    prepare,
+)
 from ..data._rest import RestSpan, motion_span
 from ..dynamics import RigidBodyModel
 from ._channels import channel_warnings
@@ -70,6 +78,10 @@ class PreparedData:
         coulomb_velocity: the Coulomb term's smoothing velocity the later stages fit with,
             rad/s (`RigidBodyModel.coulomb_velocity`; chosen with the cut-off under
             ``"auto"``); `model_for` applies it.
+        joint_terms: the joint terms the later stages fit with when the preparation chose
+            them (the armature added, ``Options.armature``), else None; `model_for` applies
+            them.
+        joint_terms_how: how the armature was chosen (for the report), or "".
     """
 
     train: JointLog
@@ -82,6 +94,8 @@ class PreparedData:
     warnings: list[str] = field(default_factory=list)
     parts: list[LogPart] = field(default_factory=list)
     coulomb_velocity: float = 0.0
+    joint_terms: tuple[str, ...] | None = None
+    joint_terms_how: str = ""
 
     @property
     def training_parts(self) -> list[LogPart]:
@@ -96,7 +110,10 @@ class PreparedData:
         return parts[0].raw if len(parts) == 1 else None
 
     def model_for(self, model: RigidBodyModel) -> RigidBodyModel:
-        """``model`` with this preparation's Coulomb smoothing velocity (itself if it has it)."""
+        """``model`` with this preparation's joint terms and Coulomb smoothing velocity (itself
+        if it has them)."""
+        if self.joint_terms is not None and tuple(model.friction) != tuple(self.joint_terms):
+            model = model.with_joint_terms(self.joint_terms)
         if model.coulomb_velocity == self.coulomb_velocity:
             return model
         return model.with_coulomb_velocity(self.coulomb_velocity)
@@ -158,6 +175,7 @@ def prepare_data(
     cutoff, how, v_c = _cutoff(model, pick, options, not held, warnings)
     if len(raws) > 1 and options.cutoff == "auto":
         how += f" (on the longest log, {raws[longest].log.source})"
+    terms, terms_how = _armature(model, pick, options, not held, cutoff, v_c)
     prep = {
         "cutoff_hz": cutoff,
         "method": options.filter,
@@ -208,7 +226,41 @@ def prepare_data(
         warnings,
         parts,
         coulomb_velocity=v_c,
+        joint_terms=terms,
+        joint_terms_how=terms_how,
     )
+
+
+def _armature(model, log, options: Options, held_in_log: bool, cutoff: float, v_c: float):
+    """``(joint terms or None, how)``: the default terms with the armature where
+    `torchjfa.data.armature_helps` says so (``options.armature="auto"``, ``friction=None``)."""
+    if options.friction is not None or options.armature != "auto" or "armature" in model.friction:
+        return None, ""
+    try:
+        helps, how = armature_helps(
+            model.with_coulomb_velocity(v_c),
+            _choice_log(log, options, held_in_log),
+            cutoff,
+            method=options.filter,
+            velocity=options.velocity,
+            compiled=options.compute.compiled,
+        )
+    except LogError as exc:
+        return None, f"left out: the log is too short to tell ({exc})"
+    return ((*model.friction, "armature") if helps else None), how
+
+
+def _choice_log(log: JointLog, options: Options, held_in_log: bool) -> JointLog:
+    """The part of the raw log the data-driven choices see: the training part, less the
+    filter's reach before the held-out part when that is the log's end."""
+    if not held_in_log:
+        return log
+    # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
+    # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
+    # 4 / f s at the grid's lowest cut-off f
+    v = options.validation
+    end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / _lowest(options)
+    return log.select(log.t < log.t[0] + end)
 
 
 def _lowest(options: Options) -> float:
@@ -293,14 +345,7 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
     if options.cutoff != "auto" and given_v:
         return float(options.cutoff), "given (--cutoff)", model.coulomb_velocity
     given = options.cutoff != "auto"
-    if held_in_log:
-        # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
-        # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
-        # 4 / f s at the grid's lowest cut-off f
-        v = options.validation
-        low = float(options.cutoff) if given else cutoff_grid()[0]
-        end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / low
-        log = log.select(log.t < log.t[0] + end)
+    log = _choice_log(log, options, held_in_log)
     try:
         choice = choose_cutoff(
             model,
