@@ -86,3 +86,28 @@ def test_the_split_points_table_judges_each_row_on_its_window(script):
     out = io.StringIO()
     assert script.origins(DATA, times=(60.0,), window_s=1.0, cutoffs=(8.0,), out=out) == []
     assert "skipped" in out.getvalue()
+
+
+def test_the_default_projection_on_the_real_log_is_certified(script):
+    """The default identification's projection reaches the optimum of its convex problem
+    (cvxpy, Clarabel, over the closure of the consistent set: a lower bound) to 1e-6."""
+    import warnings
+
+    import torchjfa
+    from torchjfa.identification import IdentificationWarning
+    from torchjfa.identification._prior import prior_options
+    from torchjfa.physical import certify, project_convex
+
+    pytest.importorskip("cvxpy")
+    log = script.load_panda(DATA)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentificationWarning)
+        ident = torchjfa.identify(script.ROBOT, log, torchjfa.Options(jackknife=0))
+    r = ident.result
+    extra = prior_options(r.model, r.moments, r.theta_hat, float(r.prior_weight))
+    convex = project_convex(
+        r.theta_hat, layout=r.model, moments=r.moments, input_noise=r.input_noise,
+        parametrization="log-cholesky", ridge=0.0, **extra,
+    )  # fmt: skip
+    ok, gap = certify(r.projection, convex)
+    assert ok, gap

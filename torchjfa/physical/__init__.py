@@ -3,8 +3,10 @@
 - `VirtualParameters` (the seed paper's eq. 5) and `LogCholeskyParameters` (Rucker and Wensing,
   2022): ``nn.Module`` s whose output theta is consistent for every value of their variables.
 - `project`: the consistent theta closest to an unconstrained estimate in the data's metric
-  ``X^T X + N diag(input noise)`` (eq. 8), by LBFGS on either parametrisation;
-  `unconstrained_projection` the same objective's minimiser without the constraints.
+  ``X^T X + N diag(input noise)`` (eq. 8): the convex problem's optimum from a semidefinite
+  solver, polished by LBFGS on either parametrisation; `project_convex` the convex problem
+  alone (cvxpy, Clarabel) and `certify` the comparison; `unconstrained_projection` the same
+  objective's minimiser without the constraints.
 - `check`: per-body mass, inertia, triangle-inequality, pseudo-inertia and friction checks.
 - `base_parameters`: what the data determine (base parameters, their combinations, the
   condition number, and per parameter: determined, in combination, poorly or not excited).
@@ -15,6 +17,9 @@ from ._base import base_parameters as base_parameters
 from ._base import parameter_scales as parameter_scales
 from ._check import ConsistencyReport as ConsistencyReport
 from ._check import check as check
+from ._convex import ConvexProjection as ConvexProjection
+from ._convex import certify as certify
+from ._convex import project_convex as project_convex
 from ._parametrizations import LogCholeskyParameters as LogCholeskyParameters
 from ._parametrizations import VirtualParameters as VirtualParameters
 from ._parametrizations import inertial_from_log_cholesky as inertial_from_log_cholesky

@@ -134,6 +134,7 @@ def project(
     tol: float = 1e-5,
     warm_start: bool = True,
     verbose: bool = False,
+    solver: str = "sdp",
 ) -> ProjectionResult:
     """Physically consistent parameters closest to ``theta_hat`` in the data's metric (eq. 8).
 
@@ -223,6 +224,15 @@ def project(
         warm_start: for ``"virtual"``, try the log-Cholesky projection as a start (about twice
             the work, usually a lower cost).
         verbose: show a progress bar and print the result table.
+        solver: ``"sdp"``: the problem is first solved as the convex program it is in theta
+            (a quadratic cost, a linear matrix inequality per body, each body strictly inside
+            by a margin of 1e-7 of its own size: `torchjfa.physical.project_convex`) by a
+            semidefinite solver (cvxpy with Clarabel), and that global optimum is one more
+            start for LBFGS, which then polishes it in the parametrisation; the description's
+            values where the data are silent come from there (LBFGS alone can stall at a
+            vanishing mass). ``"lbfgs"``: the starts above only (a local optimum of a
+            non-convex problem). `torchjfa.physical.certify` compares the result with the
+            convex optimum.
 
     Returns:
         A `ProjectionResult`: ``.theta`` (consistent), ``.virtual`` (the fitted module), the
@@ -244,6 +254,8 @@ def project(
     _check_options(
         parametrization, ridge=ridge, prior_weight=prior_weight, tol=tol, max_iter=max_iter
     )
+    if solver not in ("sdp", "lbfgs"):
+        raise ValueError(f"solver must be 'sdp' or 'lbfgs', got {solver!r}")
     layout, theta_hat, M, prior, prior_w, m_unit = objective_terms(
         theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale
     )
@@ -260,6 +272,15 @@ def project(
     problem = Problem(th_n, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
 
     cls = PARAMETRIZATIONS[parametrization]
+    start = None
+    if solver == "sdp" and not _consistent_as_given(cls, layout, problem):
+        from ._convex import solve_normalised
+
+        try:
+            optimum, _ = solve_normalised(problem, layout, parametrization)
+            start = cls.from_theta(optimum, layout)  # inside the set by the solver's margin
+        except ValueError:  # the solver did not reach an optimum: the other starts remain
+            start = None
     with single_thread():
         fitted, n_iter, n_eval, converged = _solve(
             cls,
@@ -269,6 +290,7 @@ def project(
             max_iter=int(max_iter),
             tol=float(tol),
             verbose=verbose,
+            start=start,
         )
     result = _result(
         cls,
@@ -383,8 +405,19 @@ def _result(
     )
 
 
-def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose):
-    """Fit a ``cls`` module; returns (module, iterations, evaluations, converged)."""
+def _consistent_as_given(cls, layout, problem: Problem) -> bool:
+    """Whether theta_hat is consistent (the module represents it) and no prior pulls: then it
+    minimises eq. 8 and is the answer (`_solve` returns it at once)."""
+    if problem.prior is not None:
+        return False
+    th = problem.theta_hat
+    with torch.no_grad():
+        return bool(torch.allclose(cls.from_theta(th, layout)(), th, rtol=1e-12, atol=1e-14))
+
+
+def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose, start=None):
+    """Fit a ``cls`` module; returns (module, iterations, evaluations, converged). ``start``: one
+    more candidate start (the convex optimum)."""
     th = problem.theta_hat
     exact = cls.from_theta(th, layout)
     with torch.no_grad():
@@ -413,6 +446,8 @@ def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose)
             starts.append(cls.from_theta(fully(), layout))
     if problem.prior is not None:
         starts.append(cls.from_theta(problem.prior, layout))
+    if start is not None:
+        starts.append(start)
     with torch.no_grad():
         losses = [float(problem.loss(m())) for m in starts]
     finite = [(v, i) for i, v in enumerate(losses) if v == v and v != float("inf")]

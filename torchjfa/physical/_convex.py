@@ -1,0 +1,238 @@
+"""The physically consistent projection as the convex problem it is, solved by a semidefinite
+solver: the certificate of `project`'s answer, and a solver of its own.
+
+`project` minimises eq. 8 (plus the ridge and the prior) over a parametrisation of the
+consistent set, a non-convex problem in its variables. In theta the same problem is convex: a
+quadratic cost, and per body a linear matrix inequality,
+
+    log-Cholesky:  J(pi) = [[tr(I_o)/2 1 - I_o, h], [h^T, m]]  >= 0   (the pseudo-inertia)
+    virtual:       [[I_o, S(h)], [S(h)^T, m 1]]                 >= 0   (m >= 0, I_c >= 0)
+
+(``I_o`` the inertia about the body frame's origin, ``h = m c`` its first moment, ``S`` the
+cross-product matrix; the second is eq. 5 by a Schur complement), and friction >= 0 for the
+viscous, Coulomb and armature terms. `project_convex` hands that problem, in `project`'s own
+units, to cvxpy (Clarabel); `certify` compares `project`'s cost with the convex optimum. The
+closures (``>= 0``) hold where `project`'s sets are open (a positive definite pseudo-inertia),
+so the convex optimum is a lower bound that the parametrisation can approach arbitrarily
+closely: a relative gap of 1e-6 certifies `project`'s answer to that tolerance.
+
+cvxpy is an optional dependency (``pip install "torchjfa[convex]"``).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..dynamics._parameters import pseudo_inertia
+from ._objective import objective_terms, unit_of
+from ._optimize import Problem
+from ._parametrizations import LogCholeskyParameters, resolve_layout
+
+__all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
+
+#: each body's matrix inequality holds with this margin, in the body's own units (its mass,
+#: its radius of gyration), so that the answer is consistent beyond the solver's accuracy; it
+#: moves the optimum by about as much, relatively
+MARGIN = 1e-7
+#: solver settings tighter than the defaults (the answer is a parameter vector, not a bound)
+_TIGHT = {"CLARABEL": {}}
+#: the relative gap `certify` accepts by default
+CERTIFY_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class ConvexProjection:
+    """What `project_convex` found.
+
+    Attributes:
+        theta: ``(n_params,)`` the convex optimum, float64 (on the closure of the consistent set:
+            a body may be on its boundary, e.g. a massless one).
+        objective: the objective at ``theta`` (eq. 8 plus the ridge and prior terms, in the
+            units of `project`'s ``objective``).
+        status: the solver's status (``"optimal"``).
+        solver: the solver used.
+    """
+
+    theta: torch.Tensor
+    objective: float
+    status: str
+    solver: str
+
+
+def _cvxpy():
+    try:
+        import cvxpy
+    except ImportError:  # an optional dependency
+        raise ImportError(
+            'the convex projection needs cvxpy: pip install "torchjfa[convex]" (or cvxpy)'
+        ) from None
+    return cvxpy
+
+
+def _variable_scales(layout, theta_hat: torch.Tensor, prior) -> np.ndarray:
+    """``(n_params,)`` the unit of each variable: per body ``m_s`` for the mass, ``m_s L`` for
+    the first moments and ``m_s L^2`` for the inertias (``m_s`` the larger of the body's
+    estimated and prior mass, ``L`` its radius of gyration), per friction term its size."""
+    ref = theta_hat.abs() if prior is None else torch.maximum(theta_hat.abs(), prior.abs())
+    inertial, friction = layout.split(ref)
+    big = float(ref.max()) if float(ref.max()) > 0 else 1.0
+    m_s = inertial[:, 0].clamp_min(1e-6 * big)
+    inertia = inertial[:, 4:].amax(-1)
+    L = (inertia / m_s).sqrt().clamp(min=1e-3, max=1e3)
+    per = torch.stack([m_s, *(m_s * L,) * 3, *(m_s * L * L,) * 6], -1)
+    fr = friction.clamp_min(1e-6 * big)
+    return layout.join(per, fr).numpy()
+
+
+def _body_lmis(cp, theta, layout, parametrization: str, scales: torch.Tensor, margin) -> list:
+    """One linear matrix inequality per body, on ``theta * scales`` (``theta`` a cvxpy
+    variable), each divided by its body's mass unit (the same cone)."""
+    constraints = []
+    n_bodies = layout.n_joints
+    eye10 = torch.eye(10, dtype=torch.float64)
+    if parametrization == "log-cholesky":
+        basis = pseudo_inertia(eye10).numpy()  # (10, 4, 4): J is linear in pi
+    else:
+        from ..dynamics._parameters import inertia_about_origin
+
+        inertia = inertia_about_origin(eye10).numpy()  # (10, 3, 3)
+        basis = np.zeros((10, 6, 6))
+        basis[:, :3, :3] = inertia
+        for k in range(10):
+            h = eye10[k, 1:4].numpy()
+            S = np.array([[0, -h[2], h[1]], [h[2], 0, -h[0]], [-h[1], h[0], 0]])
+            basis[k, :3, 3:] = S
+            basis[k, 3:, :3] = S.T
+            basis[k, 3:, 3:] = eye10[k, 0].item() * np.eye(3)
+    index, _ = layout.split(torch.arange(layout.n_params))
+    size = basis.shape[-1]
+    B = basis.reshape(10, size * size).T  # (size^2, 10): vec(J) = B pi
+    for b in range(n_bodies):
+        idx = index[b].tolist()
+        s = scales[idx].numpy()
+        # the congruence diag(1/L, 1/L, 1/L, 1) (or its 6x6 twin) and 1/m_s keep the cone
+        L = float(np.sqrt(s[4] / s[0]))
+        T = (
+            np.diag([1 / L] * 3 + [1.0] * (size - 3))
+            if size == 4
+            else np.diag([1 / L] * 3 + [1 / L] * 3)
+        )
+        Bb = (np.kron(T, T) @ B) * (s / s[0])[None, :]
+        J = cp.reshape(Bb @ theta[idx], (size, size), order="C")
+        # strictly inside, by more than the solver's accuracy (the body in its own units)
+        constraints.append(0.5 * (J + J.T) >> margin * np.eye(size))
+    return constraints
+
+
+def _friction_signs(layout) -> list[int]:
+    """Indices of theta that are friction or armature terms and must be >= 0."""
+    _, friction = layout.split(torch.arange(layout.n_params))
+    signed = [k != "offset" for k in layout.friction]
+    return [int(i) for row in friction.tolist() for i, s in zip(row, signed, strict=True) if s]
+
+
+def solve_normalised(
+    problem: Problem, layout, parametrization: str, solver: str = "CLARABEL", margin: float = MARGIN
+):
+    """The minimiser of ``problem`` (`project`'s normalised objective) over the consistent set
+    of ``parametrization`` shrunk by ``margin`` (each body's matrix inequality ``>= margin 1``
+    in the body's own units; 0: the closure), ``(theta (d,) float64, solver iterations)``.
+
+    Raises:
+        ImportError: without cvxpy.
+        ValueError: when the solver does not reach an optimum.
+    """
+    cp = _cvxpy()
+    # each body in its own units (its mass and its radius of gyration: the LMIs are invariant
+    # under them), each friction term in its own, so that the solver sees O(1) numbers
+    D = torch.from_numpy(_variable_scales(layout, problem.theta_hat, problem.prior))
+    y = cp.Variable(layout.n_params)
+    x = cp.multiply(D.numpy(), y)
+    # the objective is f_min + (x - x*)^T A (x - x*) (x* its unconstrained minimiser, A its
+    # Hessian / 2): the solver sees the second term alone, in units of its value at a
+    # consistent reference (theta_hat's clip), so that it works with O(1) numbers and no
+    # cancellation against f_min
+    A = 0.5 * problem.norm * problem.hess
+    x_star = problem.minimiser()
+    evals, evecs = torch.linalg.eigh(0.5 * (A + A.T))
+    factor = (evecs * evals.clamp_min(0).sqrt()).numpy()  # A = F F^T
+    with torch.no_grad():
+        ref = LogCholeskyParameters.from_theta(problem.theta_hat, layout)()
+    g = float((ref - x_star) @ (A @ (ref - x_star)))
+    constraints = _body_lmis(cp, y, layout, parametrization, D, margin)
+    signs = _friction_signs(layout)
+    if signs:
+        constraints.append(y[signs] >= 0)
+    iters = 0
+    # the solver's accuracy is relative to the objective's unit: a second solve in units of
+    # the first one's optimum when that is far below the reference's value
+    for _ in range(2):
+        unit = g if g > 0 else 1.0
+        cost = cp.sum_squares(factor.T @ (x - x_star.numpy())) / unit
+        prog = cp.Problem(cp.Minimize(cost), constraints)
+        try:
+            with warnings.catch_warnings():  # "optimal_inaccurate" is judged below
+                warnings.simplefilter("ignore", UserWarning)
+                prog.solve(solver=solver, **_TIGHT.get(solver, {}))
+        except cp.error.SolverError as exc:
+            raise ValueError(f"the semidefinite solver {solver} failed: {exc}") from None
+        if prog.status not in ("optimal", "optimal_inaccurate") or y.value is None:
+            raise ValueError(f"the semidefinite solver {solver} stopped with status {prog.status}")
+        iters += int(getattr(prog.solver_stats, "num_iters", None) or 0)
+        g_opt = float(prog.value) * unit
+        if not 0 < g_opt < 1e-2 * unit:
+            break
+        g = g_opt
+    theta = D * torch.from_numpy(np.asarray(y.value, dtype=np.float64))
+    return theta, iters
+
+
+def project_convex(
+    theta_hat,
+    *,
+    layout,
+    moments=None,
+    metric=None,
+    input_noise=None,
+    parametrization: str = "log-cholesky",
+    prior=None,
+    prior_weight: float = 0.0,
+    prior_scale=None,
+    ridge: float = 1e-8,
+    solver: str = "CLARABEL",
+    margin: float = 0.0,
+) -> ConvexProjection:
+    """`project`'s problem (the same arguments and objective) solved as a semidefinite program
+    by cvxpy with ``solver`` (`solve_normalised`) over the closure of the consistent set
+    (``margin=0``): its optimum is a lower bound of every consistent parameter vector's
+    objective, the certificate of `project`'s answer (`certify`).
+
+    Raises:
+        ImportError: without cvxpy.
+        ValueError: as `project`; or when the solver does not reach an optimum.
+    """
+    layout, th, M, prior, prior_w, m_unit = objective_terms(
+        theta_hat, resolve_layout(layout), moments, metric, input_noise, prior, prior_weight,
+        prior_scale,
+    )  # fmt: skip
+    th = th.to(torch.float64).cpu()
+    M_n = (M / m_unit).cpu()
+    unit = unit_of(th, M_n, prior)
+    prior_n = prior.cpu() / unit if prior is not None and float(prior_weight) > 0 else None
+    problem = Problem(th / unit, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
+    theta_n, _ = solve_normalised(problem, layout, parametrization, solver, margin)
+    objective = float(problem.objective(theta_n)) * unit**2 * m_unit
+    return ConvexProjection(theta_n * unit, objective, "optimal", solver)
+
+
+def certify(result, convex: ConvexProjection, *, tol: float = CERTIFY_TOL) -> tuple[bool, float]:
+    """Whether `project`'s ``result`` reaches the convex optimum: ``(ok, gap)`` with ``gap`` its
+    objective's excess over the optimum's, relative to the optimum (at most ``tol``)."""
+    f = float(result.objective)
+    f_star = float(convex.objective)
+    gap = (f - f_star) / max(abs(f_star), 1e-300)
+    return gap <= tol, gap
