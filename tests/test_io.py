@@ -82,7 +82,7 @@ def test_inverse_dynamics_is_saved_with_its_theta_and_loads_trainable(head, tmp_
     theta = _perturbed_theta(head, seed=3)
     path = tmp_path / "idyn.npz"
     save_identified(path, InverseDynamics(head, theta))
-    idyn = load_identified(path, trainable=True)
+    idyn = load_identified(path, trainable="unconstrained")
     assert idyn.trainable
     assert torch.equal(idyn.theta.detach(), theta)
 

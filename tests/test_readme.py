@@ -47,3 +47,29 @@ def test_the_python_version_of_the_command_runs_as_written(tmp_path, monkeypatch
     log = namespace["ident"].data.validation
     tau = namespace["dynamics"](log.q, log.qd, log.qdd)
     assert tau.shape == log.tau.shape
+
+
+def test_the_torch_pipeline_example_runs_as_written(tmp_path, monkeypatch):
+    import warnings
+
+    import torch
+
+    from torchjfa.cli import main
+
+    text = README.read_text(encoding="utf-8")
+    match = re.search(
+        r"^## The identified model in a torch pipeline.*?```python\n(.*?)^```$", text, re.S | re.M
+    )
+    assert match, "README.md has no python block for the torch pipeline"
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "head", "--out", "log.csv", "--n-samples", "5040", "--quiet"]) == 0
+    args = ["identify", "head", "log.csv", "--out", "result", "--quiet", "--no-plots"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main([*args, "--jackknife", "0", "--cutoff", "15"]) == 0
+    ns: dict = {}
+    exec(compile(match.group(1), str(README), "exec"), ns)
+    # the forward dynamics invert the inverse, and the rollout stays finite
+    assert torch.allclose(ns["accel"], ns["qdd"], atol=1e-9)
+    assert bool(torch.isfinite(ns["path_q"]).all()) and ns["path_q"].shape[0] == 101
+    assert torch.allclose(ns["with_residual"](ns["q"], ns["qd"], ns["qdd"]), ns["tau"])

@@ -102,12 +102,13 @@ class IdentificationResult:
         rss = self.moments.rss(theta)
         return float(torch.sqrt(rss.clamp_min(0.0) / self.moments.n))
 
-    def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
+    def inverse_dynamics(self, *, projected: bool = True, trainable: bool | str = False):
         """The identified model as an `InverseDynamics` ``nn.Module``.
 
         Args:
             projected: use `theta` (default) or the unconstrained ``theta_hat``.
-            trainable: make theta a trainable parameter (e.g. to learn a residual on top).
+            trainable: False (frozen), True (trained through the consistent parametrisation)
+                or ``"unconstrained"`` (see `torchjfa.dynamics.InverseDynamics`).
         """
         theta = self.theta if projected else self.theta_hat
         return InverseDynamics(self.model, theta.detach().cpu(), trainable=trainable)

@@ -86,7 +86,7 @@ class IdentifiedModel:
     library_version: str = ""
     source_path: str | None = None
 
-    def inverse_dynamics(self, *, trainable: bool = False) -> InverseDynamics:
+    def inverse_dynamics(self, *, trainable: bool | str = False) -> InverseDynamics:
         """A ready `InverseDynamics` of ``model`` and ``theta``."""
         return InverseDynamics(self.model, self.theta, trainable=trainable)
 
@@ -309,12 +309,14 @@ def _read_arrays(path: str) -> dict[str, object]:
     return data
 
 
-def load_identified(path: str | os.PathLike, *, trainable: bool = False) -> InverseDynamics:
+def load_identified(path: str | os.PathLike, *, trainable: bool | str = False) -> InverseDynamics:
     """Load a file written by `save_identified` into a ready `InverseDynamics`.
 
     Args:
         path: the ``.npz`` file.
-        trainable: make theta trainable (see `InverseDynamics`).
+        trainable: False (frozen), True or ``"consistent"`` (trained through the consistent
+            parametrisation: every step stays physically consistent) or ``"unconstrained"``
+            (theta itself; see `InverseDynamics`).
 
     Returns:
         ``InverseDynamics(model, theta)`` giving bitwise the torques of the saved model.

@@ -46,7 +46,7 @@ def test_state_dict_round_trip(model, tmp_path):
 def test_gradients_flow_to_theta_only_when_trainable(model):
     q, qd, qdd = random_state(model.n_dof, (6,), seed=2)
     target = torch.zeros(6, model.n_dof, dtype=torch.float64)
-    trainable = InverseDynamics(model, trainable=True)
+    trainable = InverseDynamics(model, trainable="unconstrained")
     loss = ((trainable(q, qd, qdd) - target) ** 2).sum()
     loss.backward()
     Y = model.regressor(q, qd, qdd).reshape(-1, model.n_params)

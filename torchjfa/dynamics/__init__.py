@@ -1,6 +1,11 @@
-"""Rigid-body models from URDF/MJCF: forward kinematics, the batched dynamics regressor and
-`InverseDynamics`."""
+"""Rigid-body models from URDF/MJCF: forward kinematics, the batched dynamics regressor,
+`InverseDynamics`, and forward dynamics (mass matrix, accelerations, rollouts)."""
 
+from ._forward import bias_forces as bias_forces
+from ._forward import forward_dynamics as forward_dynamics
+from ._forward import mass_matrix as mass_matrix
+from ._forward import rollout as rollout
+from ._inverse_dynamics import ConsistentTheta as ConsistentTheta
 from ._inverse_dynamics import InverseDynamics as InverseDynamics
 from ._model import BodyInertial as BodyInertial
 from ._model import RigidBodyModel as RigidBodyModel

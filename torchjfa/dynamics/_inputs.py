@@ -17,50 +17,64 @@ __all__ = ["check_state", "check_out", "check_chunk", "new_output"]
 
 _NUMPY_ALLOC_MIN = 1 << 20  # elements
 _NP_DTYPES = {torch.float64: np.float64, torch.float32: np.float32}
+_STATE_NAMES = ("q", "qd", "qdd", "tau")
 
 
-def check_state(q, qd, qdd, tau=None, *, joint_names: Sequence[str]) -> list[torch.Tensor]:
+def check_state(
+    *values, joint_names: Sequence[str], names: Sequence[str] = _STATE_NAMES
+) -> list[torch.Tensor]:
     """Check joint states against a model's joints and bring them to one dtype.
 
+    While `torch.compile` or `torch.export` traces (``torch.compiler.is_compiling()``), the
+    NaN/inf check is skipped: it reads the data, which a traced graph cannot branch on. Shapes
+    and devices are still checked (they are known while tracing).
+
     Args:
-        q, qd, qdd: ``(*batch, n_dof)`` joint positions, velocities and accelerations (tensors
-            or array-likes; non-tensors become float64).
-        tau: optional ``(*batch, n_dof)`` joint torques, N m or N.
+        values: ``(*batch, n_dof)`` arrays, by default ``q, qd, qdd`` and optionally ``tau``
+            (joint positions, velocities, accelerations and torques; tensors or array-likes,
+            non-tensors become float64); a trailing None is dropped.
         joint_names: the model's ``n_dof`` joints, for the error message.
+        names: the names of ``values``, for the error messages; the first is the reference
+            whose shape and device the others must have.
 
     Returns:
-        ``[q, qd, qdd]`` (and ``tau`` when given) as tensors of their promoted dtype.
+        The values as tensors of their promoted dtype, in order.
 
     Raises:
         ValueError: on a wrong last dimension, mismatched shapes or devices, NaN or inf.
     """
+    values = list(values)
+    while values and values[-1] is None:
+        values.pop()
+    if not values or len(values) > len(names):
+        raise TypeError(f"check_state takes 1 to {len(names)} arrays, got {len(values)}")
     n_dof = len(joint_names)
-    names = ("q", "qd", "qdd", "tau")
-    vals = [as_tensor(v, name=n) for v, n in zip((q, qd, qdd, tau), names, strict=False)]
-    if tau is None:
-        vals = vals[:3]
+    vals = [as_tensor(v, name=n) for v, n in zip(values, names, strict=False)]
     shape = vals[0].shape
     if len(shape) == 0 or shape[-1] != n_dof:
         raise ValueError(
-            f"q must have shape (*batch, {n_dof}) (one column per joint of "
+            f"{names[0]} must have shape (*batch, {n_dof}) (one column per joint of "
             f"{tuple(joint_names)}), got {tuple(shape)}"
         )
     for v, n in zip(vals[1:], names[1:], strict=False):
         if v.shape != shape:
             raise ValueError(
-                f"{n} must have the same shape as q {tuple(shape)}, got {tuple(v.shape)}"
+                f"{n} must have the same shape as {names[0]} {tuple(shape)}, got {tuple(v.shape)}"
             )
         if v.device != vals[0].device:
-            raise ValueError(f"{n} is on {v.device}, q on {vals[0].device}; use one device")
+            raise ValueError(
+                f"{n} is on {v.device}, {names[0]} on {vals[0].device}; use one device"
+            )
     dtype = vals[0].dtype
     for v in vals[1:]:
         dtype = torch.promote_types(dtype, v.dtype)
     vals = [v.to(dtype) for v in vals]
-    for v, n in zip(vals, names, strict=False):
-        if not v.requires_grad:
-            check_finite(v, n)
-        elif not bool(torch.isfinite(v.detach()).all()):
-            check_finite(v.detach(), n)
+    if not torch.compiler.is_compiling():
+        for v, n in zip(vals, names, strict=False):
+            if not v.requires_grad:
+                check_finite(v, n)
+            elif not bool(torch.isfinite(v.detach()).all()):
+                check_finite(v.detach(), n)
     return vals
 
 

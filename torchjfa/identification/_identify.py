@@ -86,7 +86,7 @@ class Identification:
             "or record a longer or richer excitation"
         )
 
-    def inverse_dynamics(self, *, projected: bool = True, trainable: bool = False):
+    def inverse_dynamics(self, *, projected: bool = True, trainable: bool | str = False):
         """The identified model as an `InverseDynamics` ``nn.Module`` (see
         `torchjfa.identification.IdentificationResult.inverse_dynamics`)."""
         return self.result.inverse_dynamics(projected=projected, trainable=trainable)

@@ -99,7 +99,7 @@ class ResidualDynamics(nn.Module):
                     f"n_dof={n_dof} but the inverse dynamics has {inverse_dynamics.model.n_dof}"
                 )
             n_dof = inverse_dynamics.model.n_dof
-            inverse_dynamics.theta.requires_grad_(False)
+            inverse_dynamics.requires_grad_(False)  # theta, or its parametrisation
         if features is not None and not callable(features):
             raise TypeError(f"features must be callable, got {type(features)}")
         self.n_dof = int(n_dof)
