@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from ..dynamics import InverseDynamics
+from ..dynamics._forward import regressor as traceable_regressor
 from ..physical import VirtualParameters
 from ._networks import MLP, JointResidual
 
@@ -157,7 +158,7 @@ class ResidualDynamics(nn.Module):
         if self.inverse_dynamics is None:
             return torch.zeros_like(q)
         if regressor is None:
-            regressor = self.inverse_dynamics.model.regressor(q, qd, qdd)
+            regressor = traceable_regressor(self.inverse_dynamics.model, q, qd, qdd)
         theta = self.theta()
         return regressor @ theta.to(dtype=regressor.dtype, device=regressor.device)
 
