@@ -107,3 +107,18 @@ def test_compiled_module_gives_the_eager_torques_in_one_graph(head):
     compiled = torch.compile(idyn, fullgraph=True)  # fullgraph: a graph break raises
     q, qd, qdd = _states(head.n_dof, 6, seed=4)
     _assert_same(compiled(q, qd, qdd), idyn(q, qd, qdd))
+
+
+def test_a_residual_on_the_identified_model_exports(head):
+    """`ResidualDynamics` (the frozen model plus a network) traces through the same torch path:
+    the exported program gives the eager torques."""
+    from torchjfa.learning import ResidualDynamics
+
+    torch.manual_seed(0)
+    model = ResidualDynamics(InverseDynamics(head, _theta(head))).double()
+    with torch.no_grad():  # a residual that is not zero, so that the network is in the graph
+        for p in model.residual.parameters():
+            p.normal_(0.0, 0.1)
+    states = _states(head.n_dof, 6, seed=3)
+    program = torch.export.export(model, states)
+    _assert_same(program.module()(*states), model(*states))
