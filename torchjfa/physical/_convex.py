@@ -2,21 +2,21 @@
 solver: the certificate of `project`'s answer, and a solver of its own.
 
 `project` minimises eq. 8 (plus the ridge and the prior) over a parametrisation of the
-consistent set, a non-convex problem in its variables. In theta the same problem is convex: a
-quadratic cost, and per body a linear matrix inequality,
+consistent set, a non-convex problem in its variables, by LBFGS. In theta the same problem is
+convex: a quadratic cost, and per body a linear matrix inequality,
 
     log-Cholesky:  J(pi) = [[tr(I_o)/2 1 - I_o, h], [h^T, m]]  >= 0   (the pseudo-inertia)
     virtual:       [[I_o, S(h)], [S(h)^T, m 1]]                 >= 0   (m >= 0, I_c >= 0)
 
 (``I_o`` the inertia about the body frame's origin, ``h = m c`` its first moment, ``S`` the
 cross-product matrix; the second is eq. 5 by a Schur complement), and friction >= 0 for the
-viscous, Coulomb and armature terms. `project_convex` hands that problem, in `project`'s own
-units, to cvxpy (Clarabel); `certify` compares `project`'s cost with the convex optimum. The
-closures (``>= 0``) hold where `project`'s sets are open (a positive definite pseudo-inertia),
-so the convex optimum is a lower bound that the parametrisation can approach arbitrarily
-closely: a relative gap of 1e-6 certifies `project`'s answer to that tolerance.
-
-cvxpy is an optional dependency (``pip install "torchjfa[convex]"``).
+viscous, Coulomb and armature terms. `solve_normalised` hands that problem, in `project`'s
+own units, to cvxpy (Clarabel, an interior-point solver), each body strictly inside by
+`MARGIN`: its optimum is `project`'s best start (``solver="sdp"``), which LBFGS then polishes.
+`project_convex` solves the same problem over the closures (``>= 0``), where `project`'s sets
+are open (a positive definite pseudo-inertia): its optimum is a lower bound that the
+parametrisation can approach arbitrarily closely, and `certify` compares `project`'s cost with
+it (a relative gap of at most 1e-6 certifies the answer to that tolerance).
 """
 
 from __future__ import annotations
@@ -38,8 +38,6 @@ __all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
 #: its radius of gyration), so that the answer is consistent beyond the solver's accuracy; it
 #: moves the optimum by about as much, relatively
 MARGIN = 1e-7
-#: solver settings tighter than the defaults (the answer is a parameter vector, not a bound)
-_TIGHT = {"CLARABEL": {}}
 #: the relative gap `certify` accepts by default
 CERTIFY_TOL = 1e-6
 
@@ -53,7 +51,7 @@ class ConvexProjection:
             a body may be on its boundary, e.g. a massless one).
         objective: the objective at ``theta`` (eq. 8 plus the ridge and prior terms, in the
             units of `project`'s ``objective``).
-        status: the solver's status (``"optimal"``).
+        status: the solver's status (``"optimal"`` or ``"optimal_inaccurate"``).
         solver: the solver used.
     """
 
@@ -68,7 +66,8 @@ def _cvxpy():
         import cvxpy
     except ImportError:  # an optional dependency
         raise ImportError(
-            'the convex projection needs cvxpy: pip install "torchjfa[convex]" (or cvxpy)'
+            "the convex projection needs cvxpy and Clarabel (dependencies of torchjfa): "
+            "pip install cvxpy clarabel"
         ) from None
     return cvxpy
 
@@ -177,7 +176,7 @@ def solve_normalised(
         try:
             with warnings.catch_warnings():  # "optimal_inaccurate" is judged below
                 warnings.simplefilter("ignore", UserWarning)
-                prog.solve(solver=solver, **_TIGHT.get(solver, {}))
+                prog.solve(solver=solver)
         except cp.error.SolverError as exc:
             raise ValueError(f"the semidefinite solver {solver} failed: {exc}") from None
         if prog.status not in ("optimal", "optimal_inaccurate") or y.value is None:
@@ -188,7 +187,7 @@ def solve_normalised(
             break
         g = g_opt
     theta = D * torch.from_numpy(np.asarray(y.value, dtype=np.float64))
-    return theta, iters
+    return theta, iters, str(prog.status)
 
 
 def project_convex(
@@ -224,9 +223,9 @@ def project_convex(
     unit = unit_of(th, M_n, prior)
     prior_n = prior.cpu() / unit if prior is not None and float(prior_weight) > 0 else None
     problem = Problem(th / unit, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
-    theta_n, _ = solve_normalised(problem, layout, parametrization, solver, margin)
+    theta_n, _, status = solve_normalised(problem, layout, parametrization, solver, margin)
     objective = float(problem.objective(theta_n)) * unit**2 * m_unit
-    return ConvexProjection(theta_n * unit, objective, "optimal", solver)
+    return ConvexProjection(theta_n * unit, objective, status, solver)
 
 
 def certify(result, convex: ConvexProjection, *, tol: float = CERTIFY_TOL) -> tuple[bool, float]:

@@ -277,7 +277,7 @@ def project(
         from ._convex import solve_normalised
 
         try:
-            optimum, _ = solve_normalised(problem, layout, parametrization)
+            optimum, _, _ = solve_normalised(problem, layout, parametrization)
             start = cls.from_theta(optimum, layout)  # inside the set by the solver's margin
         except ValueError:  # the solver did not reach an optimum: the other starts remain
             start = None
