@@ -3,6 +3,7 @@ least squares.
 
     python scripts/real_ur10e.py            # all 15 identification logs without payload
     python scripts/real_ur10e.py --smoke    # three logs, a check
+    python scripts/real_ur10e.py --payload  # the known payloads of the loaded runs
 
 The logs are `../shared/data/ur10e_mamedov2020` (its README: a UR10e in velocity control, about
 94 Hz with uneven steps, measured q and qd, motor currents ``i_<joint>`` in A, the drive gains
@@ -31,6 +32,12 @@ win, and the currents' ripple, which no row can predict, does not swamp the diff
 per-joint RMS, N m; the mean RMS against the unfiltered torque is printed beside it. The goal:
 the defaults' mean RMS at most ``GOAL_RATIO`` times the hand-tuned reference's, with
 physically consistent parameters.
+
+``--payload``: the robot identified with the defaults from all 15 logs, then each loaded run
+with a documented mass (``PAYLOADS``: 2.602 kg and 2.805 kg on ``ee_link``) through
+`torchjfa.identification.identify_payload`, against the identified robot alone and together
+with its unloaded twin; printed: the mass found against the known one, the centre of mass, and
+the loaded run's held-out torque RMS without and with the payload.
 """
 
 from __future__ import annotations
@@ -61,6 +68,11 @@ EVAL_CUTOFF_HZ = 7.0
 HAND_CUTOFFS = (3.0, 5.0, 7.0, 10.0)
 GOAL_RATIO = 0.9
 SMOKE_LOGS = 3
+#: (loaded run, its unloaded twin, the payload's mass in kg), from the dataset's README
+PAYLOADS = (
+    ("ident_payload_ur-20_01_13-load_2600.csv", "ident_ur-19_12_23_free.csv", 2.602),
+    ("ident_payload_ur-20_02_19_14harm50secLoad.csv", "ident_ur-20_02_19_14harm50sec.csv", 2.805),
+)
 
 
 def identification_logs(folder: Path = DATA) -> list[Path]:
@@ -227,12 +239,53 @@ def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | N
     }
 
 
+def payloads(folder: Path = DATA, *, out=sys.stdout) -> list[dict] | None:
+    """The known payloads (``PAYLOADS``) identified two ways; one dict per run and way."""
+    import tempfile
+
+    from torchjfa.identification import identify_payload
+
+    paths = identification_logs(folder)
+    if not paths:
+        print(f"no UR10e logs in {folder}; nothing to do", file=out)
+        return None
+    options = torchjfa.Options(drive_gains=DRIVE_GAINS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentificationWarning)
+        ident = torchjfa.identify(folder / "robot.urdf", paths, options)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        model = ident.write(tmp, plots=False)["model"]
+        for loaded, free, mass in PAYLOADS:
+            for how, unloaded in (("robot", None), ("pair", folder / free)):
+                p = identify_payload(
+                    model, folder / loaded, link="ee_link", unloaded=unloaded, options=options
+                )
+                rows.append({"log": loaded, "how": how, "known": mass, "mass": p.mass,
+                             "std": float(p.std[0]), "com": p.com.tolist(),
+                             "rms_without": float(p.rms_without.mean()),
+                             "rms_with": float(p.rms_with.mean())})  # fmt: skip
+                r = rows[-1]
+                print(
+                    f"{loaded:<48} {how:<6} {r['mass']:.3f} kg (known {mass}, "
+                    f"{100 * (r['mass'] / mass - 1):+.1f} %) com "
+                    f"{', '.join(f'{c:.3f}' for c in r['com'])} m; held-out RMS "
+                    f"{r['rms_without']:.3f} -> {r['rms_with']:.3f} N m",
+                    file=out,
+                )
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(DATA), help="the logs' folder")
     parser.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
+    parser.add_argument("--payload", action="store_true", help="the known payloads instead")
     args = parser.parse_args(argv)
-    run(Path(args.data), smoke=args.smoke)
+    if args.payload:
+        payloads(Path(args.data))
+    else:
+        run(Path(args.data), smoke=args.smoke)
     return 0
 
 

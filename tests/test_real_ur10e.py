@@ -43,3 +43,15 @@ def test_the_script_runs_in_smoke_size():
     assert not any("runs against" in w for w in res["warnings"])
     assert "defaults / hand-tuned mean RMS" in out.getvalue()
     assert res["ratio"] > 0
+
+
+def test_the_payloads_of_the_loaded_runs_are_found_and_explain_their_torques():
+    """Both ways of `identify_payload` on both loaded runs: a positive mass of the right order
+    (the dataset's README: 2.602 and 2.805 kg) that lowers the loaded run's held-out error."""
+    import real_ur10e as script
+
+    rows = script.payloads(DATA, out=io.StringIO())
+    assert len(rows) == 2 * len(script.PAYLOADS)
+    for r in rows:
+        assert 0.5 * r["known"] < r["mass"] < 1.5 * r["known"]
+        assert r["rms_with"] < 0.5 * r["rms_without"]

@@ -20,7 +20,8 @@ from `Options`' fields. The stages, in order, each taking the previous one's out
 `residual_joint_weights` are the building blocks of `fit` and `choose_noise`, for fitting
 several estimators on the same data; `signal_bootstrap` refits on re-drawn sensor noise for the
 spread of the unconstrained estimate. `evaluate` judges an identified model on other logs
-(``torchjfa evaluate``), against the measured torque as `validate` does (`measured_torque`).
+(``torchjfa evaluate``), against the measured torque as `validate` does (`measured_torque`);
+`identify_payload` identifies a body fixed to a link (``torchjfa payload``).
 """
 
 from .._result import IdentificationResult as IdentificationResult
@@ -47,6 +48,8 @@ from ._options import IdentificationError as IdentificationError
 from ._options import IdentificationWarning as IdentificationWarning
 from ._options import Options as Options
 from ._options import joint_terms as joint_terms
+from ._payload import Payload as Payload
+from ._payload import identify_payload as identify_payload
 from ._prepare import LogPart as LogPart
 from ._prepare import PreparedData as PreparedData
 from ._prepare import prepare_data as prepare_data

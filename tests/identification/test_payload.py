@@ -1,0 +1,133 @@
+"""`identify_payload` against a payload's torques written independently: a point mass fixed to a
+tool frame of a planar 2R arm, its torques ``tau = J_p^T m (p'' - g)`` from the tip's position
+``p(q)``, its Jacobian and acceleration by hand."""
+
+import math
+
+import pytest
+import torch
+
+from torchjfa.data import JointLog
+from torchjfa.dynamics import RigidBodyModel
+from torchjfa.identification import Options
+from torchjfa.identification._payload import identify_payload, payload_regressor, transform_map
+
+L1, TOOL = 0.4, (0.25, 0.0, 0.05)  # the tool frame on link 2, m (x along the link, z up)
+ARM = f"""<?xml version="1.0"?>
+<robot name="two_link">
+  <link name="base"/>
+  <link name="l1"><inertial><origin xyz="0.2 0 0"/><mass value="1.0"/>
+    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial></link>
+  <link name="l2"><inertial><origin xyz="0.15 0.0 0"/><mass value="0.5"/>
+    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.006" iyz="0" izz="0.005"/></inertial></link>
+  <link name="tool"/>
+  <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
+    <axis xyz="0 1 0"/></joint>
+  <joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/>
+    <origin xyz="{L1} 0 0"/><axis xyz="0 1 0"/></joint>
+  <joint name="flange" type="fixed"><parent link="l2"/><child link="tool"/>
+    <origin xyz="{TOOL[0]} {TOOL[1]} {TOOL[2]}"/></joint>
+</robot>
+"""
+MASS, COM = 1.7, (0.03, 0.0, 0.02)  # the payload: a point mass, its position in the tool frame
+
+
+def _point_mass_torques(q, qd, qdd):
+    """Joint torques of the point mass, by hand: rotations about y by q1 and q1 + q2 carry the
+    x-z offsets; ``p = R(q1) [L1, 0] + R(q1 + q2) [TOOL + COM]`` in the x-z plane."""
+    a = (L1, 0.0)
+    b = (TOOL[0] + COM[0], TOOL[2] + COM[2])
+
+    def rot(angle, v):  # rotation about +y: x' = x cos + z sin, z' = -x sin + z cos
+        c, s = torch.cos(angle), torch.sin(angle)
+        return v[0] * c + v[1] * s, -v[0] * s + v[1] * c
+
+    def d_rot(angle, v):  # derivative of rot with respect to the angle
+        c, s = torch.cos(angle), torch.sin(angle)
+        return -v[0] * s + v[1] * c, -v[0] * c - v[1] * s
+
+    q1, q12 = q[:, 0], q[:, 0] + q[:, 1]
+    # Jacobian columns of p (x, z)
+    dA, dB = d_rot(q1, a), d_rot(q12, b)
+    J1 = (dA[0] + dB[0], dA[1] + dB[1])
+    J2 = dB
+    # acceleration: p'' = J qdd + (second derivatives) qd qd
+    w1, w12 = qd[:, 0], qd[:, 0] + qd[:, 1]
+    A, B = rot(q1, a), rot(q12, b)
+    ax = dA[0] * qdd[:, 0] + dB[0] * (qdd[:, 0] + qdd[:, 1]) - A[0] * w1**2 - B[0] * w12**2
+    az = dA[1] * qdd[:, 0] + dB[1] * (qdd[:, 0] + qdd[:, 1]) - A[1] * w1**2 - B[1] * w12**2
+    fx, fz = MASS * ax, MASS * (az + 9.81)  # the force the arm exerts on the mass
+    return torch.stack([J1[0] * fx + J1[1] * fz, J2[0] * fx + J2[1] * fz], 1)
+
+
+def _log(model, theta, *, loaded=True, shift=0.0, seconds=20.0, rate=200.0):
+    """A smooth excitation (sums of sines), torques of the arm (and of the payload)."""
+    t = torch.arange(int(seconds * rate), dtype=torch.float64) / rate
+    w = 2 * math.pi * torch.tensor([0.23, 0.41, 0.67], dtype=torch.float64)
+    amp = torch.tensor([[0.9, 0.4, 0.2], [1.1, 0.3, 0.25]], dtype=torch.float64)
+    phase = torch.tensor([[0.0, 1.0, 2.0], [0.5, 1.5, 2.5]], dtype=torch.float64) + shift
+    arg = w * t[:, None, None] + phase  # (n, 2, 3)
+    q = (amp * torch.sin(arg)).sum(-1)
+    qd = (amp * w * torch.cos(arg)).sum(-1)
+    qdd = -(amp * w * w * torch.sin(arg)).sum(-1)
+    tau = model.regressor(q, qd, qdd) @ theta
+    if loaded:
+        tau = tau + _point_mass_torques(q, qd, qdd)
+    return JointLog(t=t, q=q, qd=qd, tau=tau, joint_names=model.joint_names)
+
+
+def test_the_transform_map_moves_a_body_as_the_parallel_axis_theorem_says():
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, 3] = torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64)
+    pi = torch.tensor([2.0, 0.0, 0.0, 0.1, 0.01, 0, 0.01, 0, 0, 0.02], dtype=torch.float64)
+    moved = transform_map(T) @ pi
+    # h: 2 kg at z = 0.05 + 0.1; Ixx about the new origin: (0.01 - 2 0.05^2) + 2 0.15^2
+    assert moved[3] == pytest.approx(0.3, abs=1e-15)
+    assert moved[4] == pytest.approx(0.01 - 2 * 0.05**2 + 2 * 0.15**2, abs=1e-15)
+    assert moved[9] == pytest.approx(0.02, abs=1e-15)
+
+
+def test_a_point_mass_on_the_tool_is_recovered():
+    model = RigidBodyModel.from_urdf(ARM, friction=())
+    joint, _ = payload_regressor(model, "tool")
+    assert model.joint_names[joint] == "j2"
+    theta = model.nominal_theta
+    log = _log(model, theta)
+    payload = identify_payload((model, theta), log, link="tool", options=Options(cutoff=20.0))
+    # the log is smooth and noiseless: the filter's and the differences' errors only
+    assert payload.mass == pytest.approx(MASS, rel=1e-3)
+    assert payload.com[0] == pytest.approx(COM[0], abs=1e-3)
+    assert payload.com[2] == pytest.approx(COM[2], abs=1e-3)
+    assert float(payload.rms_with.max()) < 0.01 * float(payload.rms_without.max())
+    # with an unloaded run of the same arm (another motion), the robot fitted again alongside:
+    # a robot model that is wrong cancels
+    wrong = theta * 1.3
+    free = _log(model, theta, loaded=False, shift=0.7, seconds=15.0)
+    pair = identify_payload(
+        (model, wrong), log, link="tool", unloaded=free, options=Options(cutoff=20.0)
+    )
+    assert pair.mass == pytest.approx(MASS, rel=1e-3)
+    alone = identify_payload((model, wrong), log, link="tool", options=Options(cutoff=20.0))
+    assert abs(alone.mass - MASS) > 10 * abs(pair.mass - MASS)
+
+
+def test_the_command_writes_the_payload_and_refuses_an_unknown_link(tmp_path, capsys):
+    import json
+
+    from torchjfa.cli import main
+    from torchjfa.data import write_log
+    from torchjfa.io import save_identified
+
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(ARM)
+    model = RigidBodyModel.from_urdf(str(urdf), friction=())
+    save_identified(tmp_path / "model.npz", model, model.nominal_theta, cutoff_hz=20.0)
+    write_log(_log(model, model.nominal_theta), tmp_path / "loaded.csv")
+    args = ["payload", str(tmp_path / "model.npz"), str(tmp_path / "loaded.csv")]
+    assert main([*args, "--link", "tool", "--out", str(tmp_path / "p")]) == 0
+    summary = json.loads((tmp_path / "p" / "payload.json").read_text())
+    assert summary["mass"] == pytest.approx(MASS, rel=1e-3)
+    capsys.readouterr()
+    assert main([*args, "--link", "nosuch", "--out", str(tmp_path / "q")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no frame 'nosuch'" in err[0]
