@@ -278,6 +278,24 @@ class IdentificationReport:
         return parameters_figure(self.parameter_rows(), self.undetermined_entries(), path)
 
     # ------------------------------------------------------------------------- writing
+    def _write_description(self, out: Path) -> dict[str, Path]:
+        """The robot's description with the identified parameters (``model.urdf`` or
+        ``model.xml``: inertials, and the joint terms the format holds), when they are
+        consistent; records in ``settings["description_file"]`` what was written or why not."""
+        urdf = self.model.source_format == "urdf"
+        path = out / ("model.urdf" if urdf else "model.xml")
+        if not self.consistency.weakly_ok:
+            self.settings["description_file"] = "not written: the parameters are not consistent"
+            return {}
+        try:
+            write = self.model.write_urdf if urdf else self.model.write_mjcf
+            write(self.result.theta, path)
+        except (ValueError, OSError) as exc:
+            self.settings["description_file"] = f"not written: {exc}"
+            return {}
+        self.settings["description_file"] = path.name
+        return {"description": path}
+
     def markdown(self, images: Mapping[str, str] | None = None) -> str:
         """The report as Markdown (``images``: caption -> relative PNG path), one section after
         the other (`torchjfa._report_markdown.report_markdown`)."""
@@ -313,6 +331,7 @@ class IdentificationReport:
         if isinstance(prep, Mapping) and prep.get("cutoff_hz") is not None:
             extras["cutoff_hz"] = float(prep["cutoff_hz"])  # `torchjfa evaluate` prepares with it
         save_identified(paths["model"], self.model, self.result.theta, **extras)
+        paths.update(self._write_description(out))
         v = self.validation
         np.savez_compressed(
             paths["validation"],

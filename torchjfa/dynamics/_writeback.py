@@ -6,8 +6,9 @@ into it (attached by fixed joints) lose theirs: URDF links drop their ``<inertia
 get an explicit zero mass. Reloading the written file gives the same theta (inertial part).
 Joint terms: an MJCF gets each joint's armature (``armature``), viscous friction (``damping``)
 and Coulomb friction (``frictionloss``, MuJoCo's dry friction) where theta has them, so the file
-simulates the identified robot; an offset has no MJCF field, and a URDF has none for any joint
-term (they stay in theta, `torchjfa.io` keeps them). Everything else in the file is kept. Use
+simulates the identified robot; a URDF gets each joint's ``<dynamics damping friction>``
+(viscous and Coulomb); an offset (and in a URDF the armature) has no field and stays in theta
+(`torchjfa.io` keeps it). Everything else in the file is kept. Use
 `RigidBodyModel.write_urdf` / `write_mjcf` rather than these functions.
 """
 
@@ -71,6 +72,7 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
         for name in model.lumped_bodies[b.joint]:
             for old in links[name].findall("inertial"):
                 links[name].remove(old)
+    _write_urdf_dynamics(model, theta, root)
     ET.indent(root, space="  ")
     with open(path, "w", encoding="utf-8") as fh:
         fh.write('<?xml version="1.0"?>\n')
@@ -79,6 +81,39 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
 
 
 _MJCF_JOINT_FIELDS = {"armature": "armature", "viscous": "damping", "coulomb": "frictionloss"}
+_URDF_DYNAMICS = {"viscous": "damping", "coulomb": "friction"}
+
+
+def _terms(model, theta: torch.Tensor, kinds) -> torch.Tensor:
+    """``(n_dof, len(kinds))`` theta's joint terms of ``kinds``, checked non-negative."""
+    _, terms = model.layout.split(theta.detach().to(torch.float64).cpu())
+    out = terms[:, [model.friction.index(k) for k in kinds]]
+    bad = (out < 0).nonzero().tolist()
+    if bad:
+        j, k = bad[0]
+        raise ValueError(
+            f"joint {model.joint_names[j]!r} has a negative {kinds[k]} ({float(out[j, k]):.4g}); "
+            "project theta onto physically consistent parameters (torchjfa.physical) before "
+            "writing it"
+        )
+    return out
+
+
+def _write_urdf_dynamics(model, theta: torch.Tensor, root: ET.Element) -> None:
+    """Each joint's ``<dynamics damping="..." friction="...">`` from theta's viscous and Coulomb
+    terms (the URDF's only joint terms; an offset and an armature have no field there)."""
+    kinds = [k for k in model.friction if k in _URDF_DYNAMICS]
+    if not kinds:
+        return
+    values = _terms(model, theta, kinds)
+    joints = {el.get("name"): el for el in root.findall("joint")}
+    for j, name in enumerate(model.joint_names):
+        el = joints[name]
+        dyn = el.find("dynamics")
+        if dyn is None:
+            dyn = ET.SubElement(el, "dynamics")
+        for k, kind in enumerate(kinds):
+            dyn.set(_URDF_DYNAMICS[kind], _fmt(float(values[j, k])))
 
 
 def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
@@ -86,7 +121,7 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
     kinds = [k for k in model.friction if k in _MJCF_JOINT_FIELDS]
     if not kinds:
         return
-    _, terms = model.layout.split(theta.detach().to(torch.float64).cpu())
+    values = _terms(model, theta, kinds)
     joints: dict[str, list[ET.Element]] = {}
     for el in root.iter("joint"):
         joints.setdefault(el.get("name", ""), []).append(el)
@@ -97,14 +132,8 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
                 f"joint {name!r} is not named uniquely in the main MJCF file; cannot write its "
                 f"{', '.join(kinds)}"
             )
-        for kind in kinds:
-            value = float(terms[j, model.friction.index(kind)])
-            if value < 0:
-                raise ValueError(
-                    f"joint {name!r} has a negative {kind} ({value:.4g}); project theta onto "
-                    "physically consistent parameters (torchjfa.physical) before writing it"
-                )
-            found[0].set(_MJCF_JOINT_FIELDS[kind], _fmt(value))
+        for k, kind in enumerate(kinds):
+            found[0].set(_MJCF_JOINT_FIELDS[kind], _fmt(float(values[j, k])))
 
 
 def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:

@@ -1,0 +1,54 @@
+"""The identified parameters written back into the robot's description: the report folder's
+``model.xml`` (MJCF) simulates in MuJoCo with the identified inertials and joint terms, and a
+URDF gets each joint's ``<dynamics damping friction>``."""
+
+import warnings
+import xml.etree.ElementTree as ET
+
+import mujoco
+import torch
+from _robots import TWO_LINK
+
+import torchjfa
+from torchjfa.dynamics import RigidBodyModel
+from torchjfa.identification import IdentificationWarning
+from torchjfa.sim import generate_log
+
+
+def test_the_report_folder_holds_the_identified_mjcf(tmp_path):
+    sim = generate_log("head", n_samples=2520, seed=5, progress=False)
+    log = torchjfa.data.JointLog(
+        t=sim.t, q=sim.q, qd=sim.qd, tau=sim.tau, joint_names=sim.joint_names
+    )
+    options = torchjfa.Options(cutoff=15.0, jackknife=0, bias_correction=0, armature="off")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentificationWarning)
+        ident = torchjfa.identify("head", log, options)
+    paths = ident.write(tmp_path, plots=False)
+    assert paths["description"].name == "model.xml"
+    assert "model.xml" in paths["markdown"].read_text()
+    # read back: the same inertials (the written file's nominal parameters) and joint terms
+    model = ident.model
+    back = RigidBodyModel.from_mjcf(str(paths["description"]), friction=model.friction)
+    a, _ = model.layout.split(ident.theta)
+    b, _ = back.layout.split(back.nominal_theta)
+    assert torch.allclose(a, b, rtol=1e-9, atol=1e-12 * float(a.abs().max()))
+    mj = mujoco.MjModel.from_xml_path(str(paths["description"]))
+    _, terms = model.layout.split(ident.theta)
+    fv = terms[:, model.friction.index("viscous")]
+    for j, name in enumerate(model.joint_names):
+        dof = mj.jnt_dofadr[mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, name)]
+        assert mj.dof_damping[dof] == float(fv[j])
+
+
+def test_a_urdf_gets_the_joints_viscous_and_coulomb_friction(tmp_path):
+    model = RigidBodyModel.from_urdf(TWO_LINK, friction=("viscous", "coulomb", "offset"))
+    inertial, terms = model.layout.split(model.nominal_theta)
+    terms[:] = torch.tensor([[0.3, 0.1, -0.2], [0.25, 0.05, 0.4]], dtype=torch.float64)
+    theta = model.layout.join(inertial, terms)
+    path = tmp_path / "arm.urdf"
+    model.write_urdf(theta, path)
+    joints = {j.get("name"): j for j in ET.parse(path).getroot().findall("joint")}
+    for name, (fv, fc) in {"j1": (0.3, 0.1), "j2": (0.25, 0.05)}.items():
+        dyn = joints[name].find("dynamics")
+        assert float(dyn.get("damping")) == fv and float(dyn.get("friction")) == fc
