@@ -1,11 +1,12 @@
 """The identified parameters written back into the robot's description: the report folder's
-``model.xml`` (MJCF) simulates in MuJoCo with the identified inertials and joint terms, and a
+``identified.xml`` (MJCF) simulates in MuJoCo with the identified inertials and joint terms, and a
 URDF gets each joint's ``<dynamics damping friction>``."""
 
 import warnings
 import xml.etree.ElementTree as ET
 
 import mujoco
+import pytest
 import torch
 from _robots import TWO_LINK
 
@@ -25,8 +26,8 @@ def test_the_report_folder_holds_the_identified_mjcf(tmp_path):
         warnings.simplefilter("ignore", IdentificationWarning)
         ident = torchjfa.identify("head", log, options)
     paths = ident.write(tmp_path, plots=False)
-    assert paths["description"].name == "model.xml"
-    assert "model.xml" in paths["markdown"].read_text()
+    assert paths["description"].name == "identified.xml"
+    assert "identified.xml" in paths["markdown"].read_text()
     # read back: the same inertials (the written file's nominal parameters) and joint terms
     model = ident.model
     back = RigidBodyModel.from_mjcf(str(paths["description"]), friction=model.friction)
@@ -52,3 +53,29 @@ def test_a_urdf_gets_the_joints_viscous_and_coulomb_friction(tmp_path):
     for name, (fv, fc) in {"j1": (0.3, 0.1), "j2": (0.25, 0.05)}.items():
         dyn = joints[name].find("dynamics")
         assert float(dyn.get("damping")) == fv and float(dyn.get("friction")) == fc
+
+
+def test_the_exported_urdf_gives_the_identified_rigid_body_torques_in_pinocchio(tmp_path):
+    """Round trip: Pinocchio's inverse dynamics on the written URDF equal the identified
+    model's rigid-body torques (``Y theta`` without the joint terms), to 1e-9 relative."""
+    pin = pytest.importorskip("pinocchio")
+    model = RigidBodyModel.from_urdf(torchjfa.robots.path("panda_arm"), friction=("viscous",))
+    g = torch.Generator().manual_seed(1)
+    inertial, terms = model.layout.split(model.nominal_theta)
+    inertial[:, 0] *= 1.0 + 0.2 * torch.rand(model.n_dof, generator=g, dtype=torch.float64)
+    theta = model.layout.join(inertial, terms + 0.3)  # "identified": other masses, friction
+    path = tmp_path / "identified.urdf"
+    model.write_urdf(theta, path)
+    pm = pin.buildModelFromUrdf(str(path))
+    data = pm.createData()
+    q, qd, qdd = (torch.randn(5, model.n_dof, generator=g, dtype=torch.float64) for _ in range(3))
+    rigid = model.layout.join(inertial, torch.zeros_like(terms))
+    want = model.regressor(q, qd, qdd) @ rigid
+    names = [pm.names[i] for i in range(1, pm.njoints)]
+    order = [names.index(j) for j in model.joint_names]
+    for k in range(5):
+        qq, vv, aa = (
+            x[k].numpy()[[model.joint_names.index(n) for n in names]] for x in (q, qd, qdd)
+        )
+        tau = torch.from_numpy(pin.rnea(pm, data, qq, vv, aa).copy())[order]
+        assert torch.allclose(tau, want[k], rtol=0, atol=1e-9 * float(want[k].abs().max()))

@@ -279,11 +279,11 @@ class IdentificationReport:
 
     # ------------------------------------------------------------------------- writing
     def _write_description(self, out: Path) -> dict[str, Path]:
-        """The robot's description with the identified parameters (``model.urdf`` or
-        ``model.xml``: inertials, and the joint terms the format holds), when they are
+        """The robot's description with the identified parameters (``identified.urdf`` or
+        ``identified.xml``: inertials, and the joint terms the format holds), when they are
         consistent; records in ``settings["description_file"]`` what was written or why not."""
         urdf = self.model.source_format == "urdf"
-        path = out / ("model.urdf" if urdf else "model.xml")
+        path = out / ("identified.urdf" if urdf else "identified.xml")
         if not self.consistency.weakly_ok:
             self.settings["description_file"] = "not written: the parameters are not consistent"
             return {}
