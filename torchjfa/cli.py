@@ -150,15 +150,9 @@ def cmd_evaluate(args) -> int:
 
 def _evaluate_logs(args) -> int:
     """``torchjfa evaluate MODEL LOG ...``: the model judged on real logs."""
-    from .identification import Options, evaluate
-    from .identification._options import cli_fields
+    from .identification import evaluate
 
-    reading = {
-        f.name: getattr(args, f.name)
-        for f in cli_fields()
-        if f.metadata["group"] == "reading" and hasattr(args, f.name)
-    }
-    ev = evaluate(args.model, args.logs, Options(**reading), cutoff_hz=args.cutoff)
+    ev = evaluate(args.model, args.logs, _reading(args), cutoff_hz=args.cutoff)
     for line in ev.lines():
         print(line)
     paths = ev.write(args.out, plots=not args.no_plots)
@@ -226,17 +220,10 @@ def _evaluate_simulated(args) -> int:
 
 # ------------------------------------------------------------------------------ payload
 def cmd_payload(args) -> int:
-    from .identification import Options
-    from .identification._options import cli_fields
     from .identification._payload import identify_payload
 
-    reading = {
-        f.name: getattr(args, f.name)
-        for f in cli_fields()
-        if f.metadata["group"] == "reading" and hasattr(args, f.name)
-    }
     payload = identify_payload(
-        args.model, args.loaded, link=args.link, unloaded=args.unloaded, options=Options(**reading)
+        args.model, args.loaded, link=args.link, unloaded=args.unloaded, options=_reading(args)
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -335,12 +322,7 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
         help="prepare the logs at this cut-off (default: the model's own)",
     )
     p.add_argument("--no-plots", action="store_true", help="write no figures (with logs)")
-    from .identification._options import GROUPS, cli_fields
-
-    reading = p.add_argument_group(GROUPS["reading"])
-    for f in cli_fields():
-        if f.metadata["group"] == "reading" and f.name != "max_seconds":
-            add_option(reading, f)
+    _add_reading(p)
     p.add_argument(
         "--robot", choices=_SIM_ROBOTS, default=None, help="a simulated robot instead of logs"
     )
@@ -371,14 +353,29 @@ def _add_payload(sub) -> argparse.ArgumentParser:
     p.add_argument("--link", required=True, help="the frame the payload is fixed to")
     p.add_argument("--unloaded", nargs="+", default=None, metavar="LOG", help="logs without it")
     p.add_argument("--out", default="payload", help="output folder")
-    from .identification._options import GROUPS, cli_fields
-
-    reading = p.add_argument_group(GROUPS["reading"])
-    for f in cli_fields():
-        if f.metadata["group"] == "reading" and f.name != "max_seconds":
-            add_option(reading, f)
+    _add_reading(p)
     p.set_defaults(func=cmd_payload)
     return p
+
+
+def _add_reading(p: argparse.ArgumentParser) -> None:
+    """The reading options of `torchjfa.identification.Options` (columns, time scale, drive
+    gains, ROS topic and effort), as ``identify`` has them."""
+    from .identification._options import GROUPS, cli_fields
+
+    group = p.add_argument_group(GROUPS["reading"])
+    for f in cli_fields():
+        if f.metadata["group"] == "reading" and f.name != "max_seconds":
+            add_option(group, f)
+
+
+def _reading(args):
+    """The `torchjfa.identification.Options` of the reading flags `_add_reading` added."""
+    from .identification import Options
+    from .identification._options import cli_fields
+
+    fields = [f for f in cli_fields() if f.metadata["group"] == "reading"]
+    return Options(**{f.name: getattr(args, f.name) for f in fields if hasattr(args, f.name)})
 
 
 def main(argv=None) -> int:
