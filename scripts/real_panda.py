@@ -21,8 +21,8 @@ the same against the unfiltered torque is printed beside it. Rows:
 
 * defaults: ``torchjfa.Options()``, i.e. ``torchjfa identify panda_arm train.csv`` and nothing
   else;
-* the same without the description prior (``description_prior=None``; the default since
-  2026-12-03 is ``"auto"``);
+* the same without the description prior (``description_prior=None``; the default is
+  ``"auto"``);
 * Bayesian JFA: the best of a few configurations (judged on the held-out part: an advantage
   the defaults do not get);
 * OLS, viscous + Coulomb + offset friction (textbook Coulomb, ``sign(qd)``, no description
