@@ -228,12 +228,22 @@ def cmd_payload(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
+    from .identification._payload import write_with_payload
+    from .io import read_identified
+
+    fmt = read_identified(args.model).model.source_format
+    described = out / ("robot_with_payload.urdf" if fmt == "urdf" else "robot_with_payload.xml")
+    try:
+        write_with_payload(args.model, payload, described)
+    except (UsageError, ValueError) as exc:
+        print(f"warning: the description with the payload was not written: {exc}", file=sys.stderr)
     com = ", ".join(f"{x:.4g}" for x in payload.com.tolist())
     print(f"payload on {args.link}: {payload.mass:.4g} kg (+- {float(payload.std[0]):.2g}), "
           f"centre of mass ({com}) m in its frame; {payload.how}")  # fmt: skip
     print(
         f"held-out torque RMS: {float(payload.rms_without.mean()):.4g} N m without the payload, "
         f"{float(payload.rms_with.mean()):.4g} with it; written: {out / 'payload.json'}"
+        + (f", {described}" if described.is_file() else "")
     )
     return 0
 

@@ -127,6 +127,14 @@ def test_the_command_writes_the_payload_and_refuses_an_unknown_link(tmp_path, ca
     assert main([*args, "--link", "tool", "--out", str(tmp_path / "p")]) == 0
     summary = json.loads((tmp_path / "p" / "payload.json").read_text())
     assert summary["mass"] == pytest.approx(MASS, rel=1e-3)
+    # the description with the payload attached: reloaded, the payload is lumped into link 2
+    loaded = RigidBodyModel.from_urdf(str(tmp_path / "p" / "robot_with_payload.urdf"), friction=())
+    joint, A = payload_regressor(model, "tool")
+    before, _ = model.layout.split(model.nominal_theta)
+    after, _ = loaded.layout.split(loaded.nominal_theta)
+    want = before[joint] + A @ torch.tensor(summary["theta"], dtype=torch.float64)
+    assert torch.allclose(after[joint], want, rtol=1e-9, atol=1e-12)
+    assert torch.equal(after[1 - joint], before[1 - joint])
     capsys.readouterr()
     assert main([*args, "--link", "nosuch", "--out", str(tmp_path / "q")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -39,7 +39,13 @@ from ._options import IdentificationError, Options
 from ._prepare import _span, _trim, concatenate
 from ._read import read
 
-__all__ = ["Payload", "identify_payload", "payload_regressor", "transform_map"]
+__all__ = [
+    "Payload",
+    "identify_payload",
+    "payload_regressor",
+    "transform_map",
+    "write_with_payload",
+]
 
 
 def transform_map(T: torch.Tensor) -> torch.Tensor:
@@ -209,3 +215,55 @@ def identify_payload(
 def _cross(v: torch.Tensor) -> torch.Tensor:
     x, y, z = v.tolist()
     return torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], dtype=torch.float64)
+
+
+def write_with_payload(identified, payload: Payload, path) -> None:
+    """The identified robot's description with the payload attached to its link, written to
+    ``path``: a URDF gets a link ``payload`` fixed to ``payload.link``; an MJCF a body
+    ``payload`` inside the link's body (the link must be an MJCF body). Reloading it gives the
+    robot with the payload lumped into the body that carries it.
+
+    Raises:
+        IdentificationError: for an MJCF link that is not a body, or a name already taken.
+    """
+    import tempfile
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+
+    model, theta, _ = _identified(identified)
+    urdf = model.source_format == "urdf"
+    with tempfile.TemporaryDirectory() as tmp:
+        written = Path(tmp) / ("robot.urdf" if urdf else "robot.xml")
+        (model.write_urdf if urdf else model.write_mjcf)(theta, written)
+        root = ET.fromstring(written.read_text())
+    names = {el.get("name") for el in root.iter() if el.get("name")}
+    if "payload" in names:
+        raise IdentificationError("the description already has an element named 'payload'")
+    c = payload.com.tolist()
+    I = payload.inertia  # noqa: E741  (about the centre of mass, the link's axes)
+    xyz = " ".join(repr(float(x)) for x in c)
+    if urdf:
+        link = ET.SubElement(root, "link", name="payload")
+        inertial = ET.SubElement(link, "inertial")
+        ET.SubElement(inertial, "origin", xyz=xyz, rpy="0 0 0")
+        ET.SubElement(inertial, "mass", value=repr(payload.mass))
+        ET.SubElement(inertial, "inertia", **{
+            f"i{a}": repr(float(I[i, j]))
+            for a, (i, j) in {"xx": (0, 0), "xy": (0, 1), "xz": (0, 2), "yy": (1, 1),
+                              "yz": (1, 2), "zz": (2, 2)}.items()
+        })  # fmt: skip
+        joint = ET.SubElement(root, "joint", name="payload_fixed", type="fixed")
+        ET.SubElement(joint, "parent", link=payload.link)
+        ET.SubElement(joint, "child", link="payload")
+    else:
+        bodies = [el for el in root.iter("body") if el.get("name") == payload.link]
+        if len(bodies) != 1:
+            raise IdentificationError(
+                f"{payload.link!r} is not one named MJCF body: attach the payload to a body"
+            )
+        body = ET.SubElement(bodies[0], "body", name="payload")
+        six = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+        ET.SubElement(body, "inertial", pos=xyz, mass=repr(payload.mass),
+                      fullinertia=" ".join(repr(float(x)) for x in six))  # fmt: skip
+    ET.indent(root, space="  ")
+    Path(path).write_text(ET.tostring(root, encoding="unicode") + "\n")
