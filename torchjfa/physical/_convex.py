@@ -28,9 +28,9 @@ import numpy as np
 import torch
 
 from ..dynamics._parameters import pseudo_inertia
-from ._objective import objective_terms, unit_of
+from ._objective import normalised_problem
 from ._optimize import Problem
-from ._parametrizations import LogCholeskyParameters, resolve_layout
+from ._parametrizations import LogCholeskyParameters
 
 __all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
 
@@ -139,28 +139,32 @@ def solve_normalised(
 ):
     """The minimiser of ``problem`` (`project`'s normalised objective) over the consistent set
     of ``parametrization`` shrunk by ``margin`` (each body's matrix inequality ``>= margin 1``
-    in the body's own units; 0: the closure), ``(theta (d,) float64, solver iterations)``.
+    in the body's own units; 0: the closure), ``(theta (d,) float64 on the problem's device,
+    solver iterations, solver status)``; the solver works on the CPU.
 
     Raises:
         ImportError: without cvxpy.
         ValueError: when the solver does not reach an optimum.
     """
     cp = _cvxpy()
+    device = problem.theta_hat.device
+    theta_hat = problem.theta_hat.cpu()
+    prior = None if problem.prior is None else problem.prior.cpu()
     # each body in its own units (its mass and its radius of gyration: the LMIs are invariant
     # under them), each friction term in its own, so that the solver sees O(1) numbers
-    D = torch.from_numpy(_variable_scales(layout, problem.theta_hat, problem.prior))
+    D = torch.from_numpy(_variable_scales(layout, theta_hat, prior))
     y = cp.Variable(layout.n_params)
     x = cp.multiply(D.numpy(), y)
     # the objective is f_min + (x - x*)^T A (x - x*) (x* its unconstrained minimiser, A its
     # Hessian / 2): the solver sees the second term alone, in units of its value at a
     # consistent reference (theta_hat's clip), so that it works with O(1) numbers and no
     # cancellation against f_min
-    A = 0.5 * problem.norm * problem.hess
-    x_star = problem.minimiser()
+    A = (0.5 * problem.norm * problem.hess).cpu()
+    x_star = problem.minimiser().cpu()
     evals, evecs = torch.linalg.eigh(0.5 * (A + A.T))
     factor = (evecs * evals.clamp_min(0).sqrt()).numpy()  # A = F F^T
     with torch.no_grad():
-        ref = LogCholeskyParameters.from_theta(problem.theta_hat, layout)()
+        ref = LogCholeskyParameters.from_theta(theta_hat, layout)()
     g = float((ref - x_star) @ (A @ (ref - x_star)))
     constraints = _body_lmis(cp, y, layout, parametrization, D, margin)
     signs = _friction_signs(layout)
@@ -187,7 +191,7 @@ def solve_normalised(
             break
         g = g_opt
     theta = D * torch.from_numpy(np.asarray(y.value, dtype=np.float64))
-    return theta, iters, str(prog.status)
+    return theta.to(device), iters, str(prog.status)
 
 
 def project_convex(
@@ -214,15 +218,9 @@ def project_convex(
         ImportError: without cvxpy.
         ValueError: as `project`; or when the solver does not reach an optimum.
     """
-    layout, th, M, prior, prior_w, m_unit = objective_terms(
-        theta_hat, resolve_layout(layout), moments, metric, input_noise, prior, prior_weight,
-        prior_scale,
-    )  # fmt: skip
-    th = th.to(torch.float64).cpu()
-    M_n = (M / m_unit).cpu()
-    unit = unit_of(th, M_n, prior)
-    prior_n = prior.cpu() / unit if prior is not None and float(prior_weight) > 0 else None
-    problem = Problem(th / unit, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
+    layout, _, problem, unit, m_unit = normalised_problem(
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale, ridge
+    )
     theta_n, _, status = solve_normalised(problem, layout, parametrization, solver, margin)
     objective = float(problem.objective(theta_n)) * unit**2 * m_unit
     return ConvexProjection(theta_n * unit, objective, status, solver)

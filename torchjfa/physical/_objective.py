@@ -3,7 +3,8 @@
 `objective_terms` turns `project`'s (and `unconstrained_projection`'s) arguments into the
 terms of eq. 8 plus the prior: the metric ``M = X^T X + N diag(input_noise)`` (`data_metric`),
 the prior and its per-parameter weights (`prior_terms`) and the power of two that scales M;
-`unit_of` is the size of theta_hat that `project` divides out.
+`unit_of` is the size of theta_hat that `project` divides out; `normalised_problem` is the
+`Problem` in those units, as `project` and `torchjfa.physical.project_convex` solve it.
 """
 
 from __future__ import annotations
@@ -12,9 +13,17 @@ import torch
 
 from .._validation import as_tensor, check_finite
 from ..stats import Moments
+from ._optimize import Problem
 from ._parametrizations import _check_theta, _power_of_two_scale, resolve_layout
 
-__all__ = ["check_non_negative", "data_metric", "objective_terms", "prior_terms", "unit_of"]
+__all__ = [
+    "check_non_negative",
+    "data_metric",
+    "normalised_problem",
+    "objective_terms",
+    "prior_terms",
+    "unit_of",
+]
 
 
 def data_metric(moments, metric, input_noise, d: int, device) -> torch.Tensor:
@@ -135,3 +144,23 @@ def unit_of(theta_hat: torch.Tensor, M: torch.Tensor, prior: torch.Tensor | None
         size = float((u @ (M @ u) / torch.diagonal(M).sum()).clamp_min(0).sqrt() * big)
         return size if 0 < size < float("inf") else float(big)
     return 1.0
+
+
+def normalised_problem(
+    theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale, ridge
+):
+    """``(layout, theta_hat, problem, unit, m_unit)``: `project`'s objective as a `Problem` in
+    units where theta_hat's size (`unit_of`) and M's mean diagonal are about 1 (theta and M
+    divided by ``unit`` and ``m_unit``; the objective then scales back by
+    ``unit^2 m_unit``). Eq. 8 and the consistent set are invariant under theta -> s theta
+    (s > 0), so the answer for s theta_hat is s times the answer for theta_hat, however large
+    or small s (the solvers' floors, damping and default body are O(1) numbers)."""
+    layout, theta_hat, M, prior, prior_w, m_unit = objective_terms(
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale
+    )
+    th = theta_hat.to(torch.float64)
+    M_n = M / m_unit
+    unit = unit_of(th, M_n, prior)
+    prior_n = prior / unit if prior is not None and float(prior_weight) > 0 else None
+    problem = Problem(th / unit, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
+    return layout, theta_hat, problem, unit, m_unit

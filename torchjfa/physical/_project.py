@@ -22,7 +22,7 @@ from torch import nn
 
 from ..stats import Moments
 from ._check import ConsistencyReport, check
-from ._objective import check_non_negative, objective_terms, unit_of
+from ._objective import check_non_negative, normalised_problem, objective_terms
 from ._optimize import Problem, minimise, single_thread, theta_fn
 from ._parametrizations import LogCholeskyParameters, VirtualParameters
 
@@ -256,20 +256,10 @@ def project(
     )
     if solver not in ("sdp", "lbfgs"):
         raise ValueError(f"solver must be 'sdp' or 'lbfgs', got {solver!r}")
-    layout, theta_hat, M, prior, prior_w, m_unit = objective_terms(
-        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale
+    # solved in units where theta_hat and M are O(1), then scaled back (`normalised_problem`)
+    layout, theta_hat, problem, unit, m_unit = normalised_problem(
+        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale, ridge
     )
-    th = theta_hat.to(torch.float64)
-    # the problem is solved in units where theta_hat's size (`unit_of`) and M's mean diagonal
-    # are ~1, then scaled back: eq. 8 and the consistent set are
-    # invariant under theta -> s theta (s > 0), so the answer for s theta_hat is s times the
-    # answer for theta_hat, however large or small s (the optimiser's floors, damping and
-    # default body are O(1) numbers)
-    M_n = M / m_unit
-    unit = unit_of(th, M_n, prior)
-    th_n = th / unit
-    prior_n = prior / unit if prior is not None and float(prior_weight) > 0 else None
-    problem = Problem(th_n, M_n, float(ridge), prior_n, float(prior_weight), prior_w)
 
     cls = PARAMETRIZATIONS[parametrization]
     start = None
