@@ -229,12 +229,10 @@ def cmd_payload(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
     from .identification._payload import write_with_payload
-    from .io import read_identified
 
-    fmt = read_identified(args.model).model.source_format
-    described = out / ("robot_with_payload.urdf" if fmt == "urdf" else "robot_with_payload.xml")
+    described = None
     try:
-        write_with_payload(args.model, payload, described)
+        described = write_with_payload(args.model, payload, out)
     except (UsageError, ValueError) as exc:
         print(f"warning: the description with the payload was not written: {exc}", file=sys.stderr)
     com = ", ".join(f"{x:.4g}" for x in payload.com.tolist())
@@ -243,7 +241,7 @@ def cmd_payload(args) -> int:
     print(
         f"held-out torque RMS: {float(payload.rms_without.mean()):.4g} N m without the payload, "
         f"{float(payload.rms_with.mean()):.4g} with it; written: {out / 'payload.json'}"
-        + (f", {described}" if described.is_file() else "")
+        + (f", {described}" if described is not None else "")
     )
     return 0
 

@@ -19,12 +19,11 @@ from pathlib import Path
 
 import torch
 
-from ..data import DEFAULT_CUTOFF_HZ, JointLog, LogError, prepare
+from ..data import DEFAULT_CUTOFF_HZ, JointLog
 from ..dynamics import RigidBodyModel
 from ..report import TorqueFit, predicted_torques, torque_errors
 from ._options import IdentificationError, Options
-from ._prepare import _span, _trim, concatenate
-from ._read import read
+from ._prepare import concatenate, read_prepared, several
 from ._validate import measured_torque
 
 __all__ = ["Evaluation", "evaluate"]
@@ -149,19 +148,12 @@ def evaluate(
     cutoff = float(cutoff_hz if cutoff_hz is not None else stored or DEFAULT_CUTOFF_HZ)
     if not 0 < cutoff < float("inf"):
         raise IdentificationError(f"the cut-off must be a positive number of Hz, got {cutoff}")
-    prep = {"cutoff_hz": cutoff, "method": options.filter, "velocity": options.velocity,
-            "period_s": None, "decimate": options.decimate}  # fmt: skip
     params = {"identified": theta}
     if bool((model.nominal_theta != 0).any()):
         params["description"] = model.nominal_theta.to(theta)
     per_log = {}
-    for source in [logs] if isinstance(logs, str | os.PathLike | JointLog) else list(logs):
-        raw = read(source, model, options).log
-        raw = _trim(raw, _span(raw, options), 4.0 / cutoff)
-        try:
-            data = prepare(raw, **prep)
-        except LogError as exc:
-            raise LogError(f"{raw.source}: cannot be prepared for the evaluation: {exc}") from None
+    for source in several(logs):
+        raw, data = read_prepared(source, model, options, cutoff)  # its errors name the log
         log = replace(data, tau=measured_torque(raw, data.t))
         name = raw.source if raw.source not in per_log else f"{raw.source} ({len(per_log)})"
         per_log[name] = (log, _fits(model, params, log))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import time
 import warnings as _warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,15 +14,14 @@ import torch
 
 from .._progress import progress_bar
 from .._result import IdentificationResult
-from ..data import JointLog
 from ..dynamics import RigidBodyModel
 from ..report import IdentificationReport, TorqueFit, estimator_text, verdict
 from ._bias import correct_bias
 from ._consistent import make_consistent
 from ._fit import fit
 from ._noise import NoiseChoice, choose_noise
-from ._options import IdentificationError, IdentificationWarning, Options
-from ._prepare import PreparedData, prepare_data
+from ._options import IdentificationWarning, Options
+from ._prepare import PreparedData, prepare_data, several
 from ._read import RawLog, load_model, read
 from ._validate import validate
 
@@ -149,8 +148,8 @@ def identify(
         torchjfa.data.LogError: on a log that cannot be read or identifies nothing.
     """
     options = Options() if options is None else options
-    logs = _several(logs)
-    held_logs = [] if validation_log is None else _several(validation_log)
+    logs = several(logs)
+    held_logs = [] if validation_log is None else several(validation_log)
     with progress_bar(total=len(STAGES), desc="identify", enabled=options.compute.progress,
                       unit="stage") as bar:  # fmt: skip
         names = iter(enumerate(STAGES))
@@ -221,17 +220,6 @@ STAGES = (
     "projecting onto consistent parameters",
     "validating",
 )
-
-
-def _several(logs) -> list:
-    """``logs`` as a list: one path or log, or a sequence of them."""
-    if isinstance(logs, str | os.PathLike | JointLog):
-        return [logs]
-    if isinstance(logs, Sequence) and not isinstance(logs, bytes):
-        if not logs:
-            raise IdentificationError("no log given")
-        return list(logs)
-    return [logs]
 
 
 def _name(thing) -> str:

@@ -25,19 +25,18 @@ torques with and without the payload.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
-from ..data import DEFAULT_CUTOFF_HZ, JointLog, prepare
+from ..data import DEFAULT_CUTOFF_HZ, JointLog
 from ..dynamics import ParameterLayout, RigidBodyModel
-from ..dynamics._parameters import inertia_about_origin, pseudo_inertia
+from ..dynamics._parameters import inertial_from_vector, pseudo_inertia
 from ..physical import inertial_from_pseudo_inertia, project
 from ._evaluate import _identified
 from ._options import IdentificationError, Options
-from ._prepare import _span, _trim, concatenate
-from ._read import read
+from ._prepare import concatenate, read_prepared, several
 
 __all__ = [
     "Payload",
@@ -130,12 +129,9 @@ class Payload:
 
 def _prepared(logs, model, options, cutoff):
     """Each log read and prepared, split into its training head and held-out tail."""
-    prep = {"cutoff_hz": cutoff, "method": options.filter, "velocity": options.velocity,
-            "period_s": None}  # fmt: skip
     heads, tails = [], []
-    for source in [logs] if isinstance(logs, str | os.PathLike | JointLog) else list(logs):
-        raw = read(source, model, options).log
-        data = prepare(_trim(raw, _span(raw, options), 4.0 / cutoff), **prep)
+    for source in several(logs):
+        _, data = read_prepared(source, model, options, cutoff)
         head, tail = data.split(options.validation, gap=int(4.0 / cutoff * data.info["rate_hz"]))
         heads.append(head)
         tails.append(tail)
@@ -198,37 +194,29 @@ def identify_payload(
     metric = Z.T @ Z
     single = ParameterLayout((link,), ())
     pi = project(pi_hat, layout=single, metric=metric, parametrization="log-cholesky").theta
-    m = float(pi[0])
-    com = pi[1:4] / m
-    S = _cross(com)
-    inertia = inertia_about_origin(pi) - m * (S.T @ S)  # the parallel-axis theorem
+    mass, com, inertia = inertial_from_vector(pi)
     Yh, tau_h = _rows(model, held)
     base = tau_h - Yh @ theta
     without = base.reshape(-1, model.n_dof)
     with_ = (base - (Yh[:, cols] @ A) @ pi).reshape(-1, model.n_dof)
     return Payload(
-        link, m, com, inertia, pi, pi_hat, std,
+        link, float(mass), com, inertia, pi, pi_hat, std,
         without.pow(2).mean(0).sqrt(), with_.pow(2).mean(0).sqrt(), how,
     )  # fmt: skip
 
 
-def _cross(v: torch.Tensor) -> torch.Tensor:
-    x, y, z = v.tolist()
-    return torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], dtype=torch.float64)
-
-
-def write_with_payload(identified, payload: Payload, path) -> None:
-    """The identified robot's description with the payload attached to its link, written to
-    ``path``: a URDF gets a link ``payload`` fixed to ``payload.link``; an MJCF a body
-    ``payload`` inside the link's body (the link must be an MJCF body). Reloading it gives the
-    robot with the payload lumped into the body that carries it.
+def write_with_payload(identified, payload: Payload, folder) -> Path:
+    """The identified robot's description with the payload attached to its link, written into
+    ``folder`` as ``robot_with_payload.urdf`` (a link ``payload`` fixed to ``payload.link``)
+    or ``robot_with_payload.xml`` (a body ``payload`` inside the link's body, which must be an
+    MJCF body), as the robot's description is; returns the path. Reloading it gives the robot
+    with the payload lumped into the body that carries it.
 
     Raises:
         IdentificationError: for an MJCF link that is not a body, or a name already taken.
     """
     import tempfile
     import xml.etree.ElementTree as ET
-    from pathlib import Path
 
     model, theta, _ = _identified(identified)
     urdf = model.source_format == "urdf"
@@ -266,4 +254,6 @@ def write_with_payload(identified, payload: Payload, path) -> None:
         ET.SubElement(body, "inertial", pos=xyz, mass=repr(payload.mass),
                       fullinertia=" ".join(repr(float(x)) for x in six))  # fmt: skip
     ET.indent(root, space="  ")
-    Path(path).write_text(ET.tostring(root, encoding="unicode") + "\n")
+    path = Path(folder) / f"robot_with_payload.{'urdf' if urdf else 'xml'}"
+    path.write_text(ET.tostring(root, encoding="unicode") + "\n")
+    return path

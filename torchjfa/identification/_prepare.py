@@ -3,6 +3,7 @@ the derivatives and the held-out part of each log (`torchjfa.data.prepare`)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -20,10 +21,10 @@ from ..data import (
 from ..data._rest import RestSpan, motion_span
 from ..dynamics import RigidBodyModel
 from ._channels import channel_warnings
-from ._options import Options
-from ._read import RawLog, enough
+from ._options import IdentificationError, Options
+from ._read import RawLog, enough, read
 
-__all__ = ["LogPart", "PreparedData", "concatenate", "prepare_data"]
+__all__ = ["LogPart", "PreparedData", "concatenate", "prepare_data", "read_prepared", "several"]
 
 
 @dataclass
@@ -379,3 +380,26 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
         )
         return choice.cutoff_hz, how, choice.coulomb_velocity
     return choice.cutoff_hz, choice.how, choice.coulomb_velocity
+
+
+def several(logs) -> list:
+    """``logs`` as a list: one path or log, or a sequence of them."""
+    if isinstance(logs, str | os.PathLike | JointLog):
+        return [logs]
+    if isinstance(logs, Sequence) and not isinstance(logs, bytes):
+        if not logs:
+            raise IdentificationError("no log given")
+        return list(logs)
+    return [logs]
+
+
+def read_prepared(source, model: RigidBodyModel, options: Options, cutoff_hz: float):
+    """``(raw, prepared)``: a log read (`read`), the rest at its ends dropped (with
+    ``options.trim_rest``) and prepared whole at ``cutoff_hz`` with the options' filter,
+    velocities and decimation and no period, as a saved model is judged (`evaluate`,
+    `identify_payload`)."""
+    raw = read(source, model, options).log
+    raw = _trim(raw, _span(raw, options), 4.0 / cutoff_hz)
+    prep = {"cutoff_hz": cutoff_hz, "method": options.filter, "velocity": options.velocity,
+            "period_s": None, "decimate": options.decimate}  # fmt: skip
+    return raw, prepare(raw, **prep)
