@@ -83,6 +83,16 @@ def test_several_logs_sum_their_moments_each_prepared_on_its_own(logs):
     assert [r["log"] for r in per_log] == [str(p) for p in logs[:2]]
     assert all(r["held_out_samples"] > 0 and r["train_samples"] > 0 for r in per_log)
     assert all(len(r["nmse"]) == model.n_dof for r in per_log)
+    # each log's own error: its held-out samples against its measured torque
+    from torchjfa.identification import measured_torque
+    from torchjfa.report import predicted_torques, torque_errors
+
+    for record, part in zip(per_log, ident.data.parts, strict=True):
+        v = part.validation
+        tau = measured_torque(part.raw, v.t)
+        pred = predicted_torques(model, ident.theta, v.q, v.qd, v.qdd, tau)
+        nmse, _ = torque_errors(tau, pred)
+        assert record["nmse"] == pytest.approx(nmse.tolist(), rel=1e-12)
 
 
 def test_motor_currents_with_drive_gains_identify_as_the_torques_do(logs, tmp_path, capsys):

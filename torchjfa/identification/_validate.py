@@ -19,7 +19,7 @@ from scipy import interpolate
 
 from .._result import IdentificationResult
 from ..data import JointLog, coverage
-from ..report import IdentificationReport, make_report, predicted_torques, torque_errors
+from ..report import IdentificationReport, make_report, torque_errors
 from ._noise import NoiseChoice
 from ._prepare import LogPart, PreparedData, concatenate
 
@@ -88,18 +88,23 @@ def validate(
     if held:
         target = concatenate([v for _, v in held])
         settings["held_out_target"] = HELD_OUT_TARGET
-    settings["logs"] = _per_log(result, data.parts, held)
     period_noise = None if noise is None else noise.period_noise
-    return make_report(result, target, period_noise=period_noise, settings=settings)
+    report = make_report(result, target, period_noise=period_noise, settings=settings)
+    report.settings["logs"] = _per_log(data.parts, held, report)
+    return report
 
 
-def _per_log(result, parts: list[LogPart], held) -> list[dict]:
-    """One record per log: its samples, the rest dropped, its held-out error."""
+def _per_log(parts: list[LogPart], held, report: IdentificationReport) -> list[dict]:
+    """One record per log: its samples, the rest dropped, and its held-out error, read off
+    the report's prediction of all the held-out samples (the logs' parts one after the
+    other)."""
     errors = {}
+    predicted, measured = report.fits["identified"].predicted, report.validation.tau
+    start = 0
     for part, v in held:
-        v = v.reorder(result.model.joint_names)
-        pred = predicted_torques(result.model, result.theta, v.q, v.qd, v.qdd, v.tau)
-        nmse, rms = torque_errors(v.tau, pred)
+        stop = start + v.n_samples
+        nmse, rms = torque_errors(measured[start:stop], predicted[start:stop])
+        start = stop
         errors[id(part)] = {
             "nmse": [float(x) for x in nmse],
             "mean_nmse": float(nmse.mean()),
