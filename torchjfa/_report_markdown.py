@@ -190,7 +190,8 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
             f" (Coulomb as tanh(qd / {model.coulomb_velocity:g} rad/s))"
             if model.coulomb_velocity and "coulomb" in model.friction
             else ""
-        ),
+        )
+        + _transmission_line(model),
         f"- estimator: `{s['estimator']}`" + _noise_mode(settings, report.result.estimator),
         f"- convergence: {convergence}",
         *([f"- {warning}"] if warning else []),
@@ -472,3 +473,16 @@ def _reproduce_section(settings: Mapping[str, object]) -> list[str]:
     if not settings.get("command"):
         return []
     return ["", "## Reproduce", "", "```", str(settings["command"]), "```"]
+
+
+def _transmission_line(model) -> str:
+    """How a transmission carries the joint terms, for the model's line ("" without one)."""
+    t = model.transmission
+    if t is None or not model.friction:
+        return ""
+    coupled = t.coupled
+    return (
+        f"; the joint terms of {', '.join(t.joints)} act per motor through the transmission "
+        f"(motor side: kg m^2, N m s/rad, N m; {', '.join(t.motors)})"
+        + (f", coupled: {', '.join(coupled)}" if coupled else "")
+    )

@@ -22,6 +22,8 @@ key                    shape, dtype        meaning
 ``friction``           (n_friction,), str  friction terms per joint (`ParameterLayout`)
 ``coulomb_velocity``   (), float64         the Coulomb term's smoothing velocity, rad/s (0:
                                            ``sign(qd)``; optional, files without it read as 0)
+``transmission``       (), str             the drive train as JSON (`Transmission.to_dict`), or
+                                           "" (none; optional, files without it read as none)
 ``joint_names``        (n_dof,), str       the layout's joint order
 ``parameter_names``    (n_params,), str    the layout's parameter names
 ``theta``              (n_params,), float  the identified parameters
@@ -35,6 +37,7 @@ that those load with ``torch.load(..., weights_only=True)``.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -155,6 +158,7 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
         "gravity": model.gravity,
         "friction": list(model.friction),
         "coulomb_velocity": float(model.coulomb_velocity),
+        "transmission": json.dumps(t.to_dict()) if (t := model.transmission) is not None else "",
         "joint_names": list(model.joint_names),
         "parameter_names": list(model.parameter_names),
         "theta": theta.clone(),
@@ -163,7 +167,7 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
 
 
 def _build_model(
-    fmt: str, path: str, xml: str, gravity, friction, coulomb_velocity=0.0
+    fmt: str, path: str, xml: str, gravity, friction, coulomb_velocity=0.0, transmission=""
 ) -> RigidBodyModel:
     if fmt not in ("urdf", "mjcf"):
         raise ValueError(f"unknown description format {fmt!r}; expected 'urdf' or 'mjcf'")
@@ -174,9 +178,12 @@ def _build_model(
     source = xml
     if path and Path(path).is_file() and Path(path).read_text() == xml:
         source = path
-    return build(
+    model = build(
         source, friction=tuple(friction), gravity=gravity, coulomb_velocity=float(coulomb_velocity)
     )
+    if str(transmission):
+        model = model.with_transmission(json.loads(str(transmission)))
+    return model
 
 
 def identified_from_dict(data: dict) -> IdentifiedModel:
@@ -200,6 +207,7 @@ def identified_from_dict(data: dict) -> IdentifiedModel:
         data["gravity"],
         [str(f) for f in data["friction"]],
         data.get("coulomb_velocity", 0.0),
+        data.get("transmission", ""),
     )
     names = tuple(str(n) for n in data["parameter_names"])
     if model.parameter_names != names:

@@ -1,5 +1,6 @@
 """Rigid-body models from URDF/MJCF: forward kinematics, the batched dynamics regressor,
-`InverseDynamics`, and forward dynamics (mass matrix, accelerations, rollouts)."""
+`InverseDynamics`, forward dynamics (mass matrix, accelerations, rollouts) and drive trains
+(`Transmission`: motors that turn joints through gearboxes, coupled or not)."""
 
 from ._forward import bias_forces as bias_forces
 from ._forward import forward_dynamics as forward_dynamics
@@ -16,3 +17,5 @@ from ._parameters import inertia_about_origin as inertia_about_origin
 from ._parameters import inertial_from_vector as inertial_from_vector
 from ._parameters import inertial_vector as inertial_vector
 from ._parameters import pseudo_inertia as pseudo_inertia
+from ._transmission import Transmission as Transmission
+from ._transmission import read_transmission as read_transmission

@@ -58,7 +58,7 @@ def regressor(model, q, qd, qdd) -> torch.Tensor:
         consts = TreeConstants.from_tree(model._tree, q2.dtype, q2.device)
     Y = q2.new_zeros(q2.shape[0], n, model.n_params)
     regressor_into(Y, q2, qd2, qdd2, consts, model.friction)
-    model._smooth_coulomb(Y, qd2)
+    model._joint_terms(Y, qd2, qdd2)
     return Y.reshape(*q.shape[:-1], n, model.n_params)
 
 

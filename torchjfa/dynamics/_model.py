@@ -12,7 +12,6 @@ import contextlib
 import copy
 import os
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -27,7 +26,7 @@ from ._kernel import RegressorKernel
 from ._kinematics import FrameKinematics
 from ._mjcf import tree_from_mjcf
 from ._parameters import (
-    ParameterLayout,
+    BodyInertial,
     check_coulomb_velocity,
     friction_kinds,
     inertial_from_vector,
@@ -35,6 +34,7 @@ from ._parameters import (
 )
 from ._rnea import TreeConstants, regressor_into
 from ._rnea_fast import regressor_fast
+from ._transmission import Transmission, apply_joint_terms, layout_for, read_transmission
 from ._tree import KinematicTree, describe_source, read_description, tree_from_urdf
 from ._urdf import fix_urdf_joints
 
@@ -42,25 +42,6 @@ __all__ = ["RigidBodyModel", "BodyInertial"]
 
 _DEFAULT_CHUNK = 1024
 _COMPILED_DTYPES = (torch.float64, torch.float32)
-
-
-@dataclass(frozen=True)
-class BodyInertial:
-    """The inertial of the body one joint moves (fixed children lumped in), in its frame.
-
-    Attributes:
-        joint: the joint's name.
-        body: the body's (URDF link's, MJCF body's) name.
-        mass: 0-d tensor, kg.
-        com: ``(3,)`` centre of mass in the body frame, m.
-        inertia: ``(3, 3)`` rotational inertia about the centre of mass, body axes, kg m^2.
-    """
-
-    joint: str
-    body: str
-    mass: torch.Tensor
-    com: torch.Tensor
-    inertia: torch.Tensor
 
 
 class RigidBodyModel(FrameKinematics):
@@ -89,6 +70,8 @@ class RigidBodyModel(FrameKinematics):
             velocities (on the real Franka Panda log of docs/real-robot.md about 0.05 rad/s),
             which ``sign`` draws as a jump; `with_coulomb_velocity` gives the same model with
             another ``v_c``, `torchjfa.data.choose_cutoff` chooses it from a log.
+        transmission: the `Transmission` whose motors carry the joint terms of the joints it
+            drives (`with_transmission`), or None.
     """
 
     def __init__(
@@ -105,7 +88,8 @@ class RigidBodyModel(FrameKinematics):
         self._tree = tree
         self.coulomb_velocity = check_coulomb_velocity(coulomb_velocity)
         self.chain = chain
-        self.layout = ParameterLayout(tree.joint_names, friction_kinds(friction))
+        self.transmission: Transmission | None = None
+        self.layout = layout_for(tree.joint_names, friction_kinds(friction), None)
         self.source_xml = source_xml
         self.source_path = source_path
         self.source_format = source_format
@@ -262,10 +246,27 @@ class RigidBodyModel(FrameKinematics):
         return other
 
     def with_joint_terms(self, friction: str | Sequence[str]) -> RigidBodyModel:
-        """The same robot with other joint terms (`FRICTION_KINDS`), its Coulomb velocity kept."""
+        """The same robot with other joint terms (`FRICTION_KINDS`), its Coulomb velocity and
+        transmission kept."""
         other = copy.copy(self)
-        other.layout = ParameterLayout(self._tree.joint_names, friction_kinds(friction))
+        other.layout = layout_for(self.joint_names, friction_kinds(friction), self.transmission)
         other._kernels = {}  # the compiled kernel holds the joint terms
+        return other
+
+    def with_transmission(self, transmission) -> RigidBodyModel:
+        """The same robot with its joint terms on the motors of ``transmission`` (a
+        `Transmission`, a JSON/YAML file or a mapping; None: on the joints). Theta keeps its
+        length; the motors' terms take their first joint's places and names.
+
+        Raises:
+            ValueError: on a transmission naming joints the robot does not have.
+        """
+        transmission = read_transmission(transmission)
+        if transmission is not None:
+            transmission.indices(self.joint_names)
+        other = copy.copy(self)
+        other.transmission = transmission
+        other.layout = layout_for(self.joint_names, self.friction, transmission)
         return other
 
     # ------------------------------------------------------------------ regressor
@@ -302,22 +303,18 @@ class RigidBodyModel(FrameKinematics):
                 the first-touch cost of fresh memory); not with inputs that require grad.
             compiled: which path computes Y. The compiled path is a C++ kernel generated for
                 this robot (`torchjfa.dynamics._codegen`: the same maths with the tree's
-                constants folded in; on the 7-DoF Panda arm at batch 1e5, one thread, about 6x
-                the torch path and 3x Pinocchio, see docs/benchmarks.md), for CPU
-                float64/float32 inputs that do not require grad; it gives the torch path's
-                result to about 1e-15 relative in float64 (1e-7 in float32). ``None`` (the
-                default) takes it wherever it applies and a C++ compiler is there; without a
-                compiler, or if compiling fails, it says so once (the ``"torchjfa"`` logger)
-                and runs the torch path. ``True`` insists (raises without a compiler);
-                ``False`` always runs the torch path. Inputs that require grad (the kernel has
-                no autograd), other devices and dtypes always run the torch path. The first
-                compiled call per robot and dtype generates the kernel and compiles it with
-                the system C++ compiler (``CXX`` or ``g++``; about 2 s for the Panda arm, with
-                a note), after that it loads from a disk cache (``$TORCHJFA_CACHE_DIR``,
-                default ``~/.cache/torchjfa``) in milliseconds; see `compile_regressor`. The
-                kernel uses ``torch.get_num_threads()`` threads on large batches; the torch
-                path runs its many small ops on one intra-op thread, which keeps it from
-                collapsing when the cores are busy.
+                constants folded in, several times faster than the torch path, see
+                docs/benchmarks.md) for CPU float64/float32 inputs that do not require grad;
+                it gives the torch path's result to about 1e-15 relative in float64 (1e-7 in
+                float32). ``None`` (the default) takes it wherever it applies and a C++
+                compiler is there; without a compiler, or if compiling fails, it says so once
+                (the ``"torchjfa"`` logger) and runs the torch path. ``True`` insists (raises
+                without a compiler); ``False`` always runs the torch path. The first compiled
+                call per robot and dtype generates and compiles the kernel (``CXX`` or
+                ``g++``; about 2 s for the Panda arm, with a note), later ones load it from a
+                disk cache (``$TORCHJFA_CACHE_DIR``, default ``~/.cache/torchjfa``); see
+                `compile_regressor`. The kernel uses ``torch.get_num_threads()`` threads on
+                large batches, the torch path one intra-op thread.
 
         Returns:
             ``(*batch, n_dof, n_params)`` in the inputs' dtype and device (float64 for
@@ -343,7 +340,7 @@ class RigidBodyModel(FrameKinematics):
         if grad:
             Y = q2.new_zeros(B, n, self.n_params)
             regressor_into(Y, q2, qd2, qdd2, c, self.friction)
-            self._smooth_coulomb(Y, qd2)
+            self._joint_terms(Y, qd2, qdd2)
             return Y.reshape(shape)
         step = _DEFAULT_CHUNK if chunk_size is None else check_chunk(chunk_size)
         Y = new_output(q2, (B, n, self.n_params)) if out is None else out.view(B, n, -1)
@@ -355,19 +352,14 @@ class RigidBodyModel(FrameKinematics):
         else:
             with single_thread() if q2.device.type == "cpu" else contextlib.nullcontext():
                 regressor_fast(Y, q2, qd2, qdd2, c, self.friction, chunk_size=step)  # every entry
-        self._smooth_coulomb(Y, qd2)
+        self._joint_terms(Y, qd2, qdd2)
         return Y.reshape(shape) if out is None else out
 
-    def _smooth_coulomb(self, Y: torch.Tensor, qd: torch.Tensor) -> None:
-        """Overwrite the Coulomb columns of ``Y (B, n, n_params)`` (written as ``sign(qd)`` by
-        every path) with ``tanh(qd / v_c)`` when ``coulomb_velocity`` > 0."""
-        if not self.coulomb_velocity or "coulomb" not in self.friction:
-            return
-        per = self.n_params // self.n_dof
-        col = 10 + self.friction.index("coulomb")
-        Y.view(Y.shape[0], self.n_dof, self.n_dof, per).diagonal(0, 1, 2)[:, col] = torch.tanh(
-            qd / self.coulomb_velocity
-        )
+    def _joint_terms(self, Y: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> None:
+        """Finish the joint-term columns of ``Y (B, n, n_params)`` that every path writes as
+        ``[qd, sign(qd), 1, qdd]``: Coulomb smoothing and the transmission's motors
+        (`torchjfa.dynamics._transmission.apply_joint_terms`)."""
+        apply_joint_terms(Y, qd, qdd, self.layout, self.coulomb_velocity, self.transmission)
 
     def _kernel(self, dtype: torch.dtype, *, required: bool = True) -> RegressorKernel | None:
         """The compiled kernel for ``dtype``; None when it cannot be built and not ``required``."""

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 __all__ = [
+    "BodyInertial",
     "check_coulomb_velocity",
     "INERTIAL_NAMES",
     "FRICTION_KINDS",
@@ -50,10 +51,13 @@ class ParameterLayout:
         joint_names: the actuated joints in model order.
         friction: joint terms per joint, a subset of ``FRICTION_KINDS`` (kept in that order):
             viscous, Coulomb and offset friction, armature.
+        term_owners: the name each joint's terms go by in `parameter_names` (default: the
+            joint's; a motor's under a `torchjfa.dynamics.Transmission`).
     """
 
     joint_names: tuple[str, ...]
     friction: tuple[str, ...] = ("viscous",)
+    term_owners: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         names = tuple(self.joint_names)
@@ -65,8 +69,12 @@ class ParameterLayout:
         unknown = [f for f in friction if f not in FRICTION_KINDS]
         if unknown:
             raise ValueError(f"unknown friction terms {unknown}; choose from {FRICTION_KINDS}")
+        owners = names if self.term_owners is None else tuple(self.term_owners)
+        if len(owners) != len(names):
+            raise ValueError(f"term_owners needs {len(names)} names, got {len(owners)}")
         object.__setattr__(self, "joint_names", names)
         object.__setattr__(self, "friction", tuple(f for f in FRICTION_KINDS if f in friction))
+        object.__setattr__(self, "term_owners", owners)
 
     @property
     def n_joints(self) -> int:
@@ -86,8 +94,12 @@ class ParameterLayout:
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
-        per = INERTIAL_NAMES + tuple(_FRICTION_SHORT[f] for f in self.friction)
-        return tuple(f"{j}.{p}" for j in self.joint_names for p in per)
+        terms = tuple(_FRICTION_SHORT[f] for f in self.friction)
+        return tuple(
+            name
+            for j, owner in zip(self.joint_names, self.term_owners, strict=True)
+            for name in (*(f"{j}.{p}" for p in INERTIAL_NAMES), *(f"{owner}.{t}" for t in terms))
+        )
 
     def split(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``theta (..., n_params)`` -> inertial ``(..., n_joints, 10)``, friction
@@ -115,6 +127,25 @@ class ParameterLayout:
         j = self.joint_names.index(joint) if isinstance(joint, str) else int(joint)
         per = INERTIAL_NAMES + tuple(_FRICTION_SHORT[f] for f in self.friction)
         return j * self.params_per_joint + per.index(name)
+
+
+@dataclass(frozen=True)
+class BodyInertial:
+    """The inertial of the body one joint moves (fixed children lumped in), in its frame.
+
+    Attributes:
+        joint: the joint's name.
+        body: the body's (URDF link's, MJCF body's) name.
+        mass: 0-d tensor, kg.
+        com: ``(3,)`` centre of mass in the body frame, m.
+        inertia: ``(3, 3)`` rotational inertia about the centre of mass, body axes, kg m^2.
+    """
+
+    joint: str
+    body: str
+    mass: torch.Tensor
+    com: torch.Tensor
+    inertia: torch.Tensor
 
 
 def symmetric_from_six(six: torch.Tensor) -> torch.Tensor:

@@ -8,7 +8,12 @@ Joint terms: an MJCF gets each joint's armature (``armature``), viscous friction
 and Coulomb friction (``frictionloss``, MuJoCo's dry friction) where theta has them, so the file
 simulates the identified robot; a URDF gets each joint's ``<dynamics damping friction>``
 (viscous and Coulomb); an offset (and in a URDF the armature) has no field and stays in theta
-(`torchjfa.io` keeps it). Everything else in the file is kept. Use
+(`torchjfa.io` keeps it). With a `Transmission`, the motors' terms go into an MJCF as one fixed
+tendon per motor (``<tendon><fixed name=motor armature damping frictionloss>`` with the ratio's
+row as the joints' ``coef``: MuJoCo then applies exactly ``R^T (I_m R qdd + f_v R qd)`` and the
+dry friction on the motor velocity); a URDF gets the joint-side equivalent (``r^2 f_v``,
+``|r| f_c``) of each motor that turns one joint alone, and a coupled motor's terms stay in theta.
+Everything else in the file is kept. Use
 `RigidBodyModel.write_urdf` / `write_mjcf` rather than these functions.
 """
 
@@ -101,23 +106,37 @@ def _terms(model, theta: torch.Tensor, kinds) -> torch.Tensor:
 
 def _write_urdf_dynamics(model, theta: torch.Tensor, root: ET.Element) -> None:
     """Each joint's ``<dynamics damping="..." friction="...">`` from theta's viscous and Coulomb
-    terms (the URDF's only joint terms; an offset and an armature have no field there)."""
+    terms (the URDF's only joint terms; an offset and an armature have no field there), the
+    joint-side equivalent of a motor that turns that joint alone."""
     kinds = [k for k in model.friction if k in _URDF_DYNAMICS]
     if not kinds:
         return
-    values = _terms(model, theta, kinds)
+    values = _terms(model, theta, kinds).numpy()
+    gear = np.ones(model.n_dof)  # joint-side factor of each joint's slot: r for a lone motor
+    t = model.transmission
+    if t is not None:
+        for slot, row in zip(t.indices(model.joint_names), t.ratio, strict=True):
+            gear[slot] = np.nan  # a coupled motor: no URDF field
+            if (row != 0).sum() == 1:
+                target = t.indices(model.joint_names)[int(np.flatnonzero(row)[0])]
+                values[target] = values[slot]
+                gear[target] = abs(float(row[row != 0][0]))
+    power = np.array([2.0 if kind == "viscous" else 1.0 for kind in kinds])
     joints = {el.get("name"): el for el in root.findall("joint")}
     for j, name in enumerate(model.joint_names):
+        if not np.isfinite(gear[j]):
+            continue
         el = joints[name]
         dyn = el.find("dynamics")
         if dyn is None:
             dyn = ET.SubElement(el, "dynamics")
         for k, kind in enumerate(kinds):
-            dyn.set(_URDF_DYNAMICS[kind], _fmt(float(values[j, k])))
+            dyn.set(_URDF_DYNAMICS[kind], _fmt(float(values[j, k] * gear[j] ** power[k])))
 
 
 def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
-    """Set the MJCF joint attributes of theta's joint terms (armature, damping, frictionloss)."""
+    """Set the MJCF joint attributes of theta's joint terms (armature, damping, frictionloss),
+    or, for the joints of a transmission, one fixed tendon per motor carrying them."""
     kinds = [k for k in model.friction if k in _MJCF_JOINT_FIELDS]
     if not kinds:
         return
@@ -125,6 +144,8 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
     joints: dict[str, list[ET.Element]] = {}
     for el in root.iter("joint"):
         joints.setdefault(el.get("name", ""), []).append(el)
+    t = model.transmission
+    driven = set() if t is None else set(t.joints)
     for j, name in enumerate(model.joint_names):
         found = joints.get(name, [])
         if len(found) != 1:
@@ -132,8 +153,23 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
                 f"joint {name!r} is not named uniquely in the main MJCF file; cannot write its "
                 f"{', '.join(kinds)}"
             )
+        if name in driven:
+            continue
         for k, kind in enumerate(kinds):
             found[0].set(_MJCF_JOINT_FIELDS[kind], _fmt(float(values[j, k])))
+    if t is None:
+        return
+    tendon = root.find("tendon")
+    if tendon is None:
+        tendon = ET.SubElement(root, "tendon")
+    for slot, motor, row in zip(t.indices(model.joint_names), t.motors, t.ratio, strict=True):
+        attrs = {
+            _MJCF_JOINT_FIELDS[kind]: _fmt(float(values[slot, k])) for k, kind in enumerate(kinds)
+        }
+        fixed = ET.SubElement(tendon, "fixed", {"name": motor, **attrs})
+        for joint, coef in zip(t.joints, row, strict=True):
+            if coef != 0:
+                ET.SubElement(fixed, "joint", joint=joint, coef=_fmt(coef))
 
 
 def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:

@@ -160,7 +160,7 @@ def identify(
             bar.set_description_str(f"identify: {name}")
 
         stage()
-        model = load_model(robot, options.friction, options.fixed_joints)
+        model = load_model(robot, options.friction, options.fixed_joints, options.transmission)
         raw = [read(log, model, options) for log in logs]
         held = [read(log, model, options) for log in held_logs] or None
         stage()

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from ..data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
-from ..dynamics import FRICTION_KINDS
+from ..dynamics import FRICTION_KINDS, read_transmission
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
 from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
@@ -200,6 +200,10 @@ class Options:
             by more than a standard error (`torchjfa.data.armature_helps`); ``"off"``: not.
         fixed_joints: joints of the description held at q = 0 and treated as fixed (a gripper's
             fingers, a mimic joint), for a robot given by file or name.
+        transmission: the drive train (`torchjfa.dynamics.Transmission`, a JSON/YAML file of
+            one or a mapping): the joint terms then act per motor through the gear ratios,
+            coupled ones included, and logs recorded at the motors are converted; None: each
+            joint has its own.
 
     Estimation:
         estimator: a name of `torchjfa.estimators.available` (`torchjfa.estimators.make`: the
@@ -362,6 +366,16 @@ class Options:
         help="joints of the description to hold at q = 0 as fixed (a gripper's fingers, mimic "
         "joints), comma separated",
     )
+    transmission: object = option(
+        None,
+        group="model",
+        parse=str,
+        metavar="FILE",
+        help="the drive train, a JSON or YAML file {joints: [...], ratio: [[...]], motors: "
+        "[...]} with motor velocity = ratio @ joint velocity: the joint terms then act per "
+        "motor (coupled wrists too), and logs with motor columns q_<motor>, tau_<motor> or "
+        "i_<motor> are converted to the joints",
+    )
     # estimation
     estimator: str | LinearEstimator = option(
         "ols",
@@ -439,6 +453,11 @@ class Options:
                 choice(f.name, value, choices() if callable(choices) else choices)
         check_numbers(self)
         check_reading(self)
+        if self.transmission is not None:
+            try:
+                object.__setattr__(self, "transmission", read_transmission(self.transmission))
+            except (OSError, ValueError) as exc:
+                raise IdentificationError(f"transmission: {exc}") from None
         check_estimator_options(self)
         w = self.description_prior
         if w not in (None, "auto") and (

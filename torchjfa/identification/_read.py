@@ -18,7 +18,10 @@ __all__ = ["RawLog", "load_model", "read", "enough", "joint_limits"]
 
 
 def load_model(
-    robot, friction: Sequence[str] | None = None, fixed_joints: Sequence[str] = ()
+    robot,
+    friction: Sequence[str] | None = None,
+    fixed_joints: Sequence[str] = (),
+    transmission=None,
 ) -> RigidBodyModel:
     """The `RigidBodyModel` of ``robot``: the first stage.
 
@@ -30,6 +33,8 @@ def load_model(
             a name, the model's own for a `RigidBodyModel`.
         fixed_joints: joints of a URDF description held at q = 0 as fixed (a gripper's
             fingers, mimic joints).
+        transmission: the drive train (`torchjfa.dynamics.Transmission` or its file), or
+            None (a `RigidBodyModel` given as it is keeps its own).
 
     Raises:
         IdentificationError: on a missing file or one that does not give a model, or joint
@@ -46,7 +51,7 @@ def load_model(
                 "fixed_joints apply to a robot read from a description; build the "
                 "RigidBodyModel given with them instead"
             )
-        return robot
+        return _geared(robot, transmission)
     from .. import robots
 
     friction = DEFAULT_JOINT_TERMS if friction is None else joint_terms(friction)
@@ -71,14 +76,26 @@ def load_model(
         )
     try:
         if fmt == "urdf":
-            return RigidBodyModel.from_urdf(
+            model = RigidBodyModel.from_urdf(
                 path, friction=tuple(friction), fixed_joints=tuple(fixed_joints)
             )
-        return RigidBodyModel.from_mjcf(path, friction=tuple(friction))
+        else:
+            model = RigidBodyModel.from_mjcf(path, friction=tuple(friction))
     except Exception as exc:  # the parsers raise many kinds; all mean "this file is not usable"
         raise IdentificationError(
             f"cannot build a robot model from {path!r}: {type(exc).__name__}: {exc}"
         ) from None
+    return _geared(model, transmission)
+
+
+def _geared(model: RigidBodyModel, transmission) -> RigidBodyModel:
+    """``model`` with ``transmission`` (None: as it is), or an `IdentificationError`."""
+    if transmission is None:
+        return model
+    try:
+        return model.with_transmission(transmission)
+    except (OSError, ValueError) as exc:
+        raise IdentificationError(f"transmission: {exc}") from None
 
 
 @dataclass
@@ -108,6 +125,11 @@ def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLo
         log = source
     else:
         log = read_log(source, **_reading(options, model))
+    if model.transmission is not None:
+        try:
+            log = model.transmission.joint_side(log)
+        except ValueError as exc:
+            raise LogError(str(exc)) from None
     log = log.reorder(model.joint_names)
     enough(log.n_samples, model, "the log has")
     problems = check_log(log, limits=joint_limits(model))
@@ -142,11 +164,12 @@ def _reading(options: Options, model: RigidBodyModel) -> dict:
                     "joint=G,..."
                 )
             gains = dict(zip(model.joint_names, gains, strict=True))
-        unknown = sorted(set(gains) - set(model.joint_names))
+        motors = () if model.transmission is None else model.transmission.motors
+        unknown = sorted(set(gains) - set(model.joint_names) - set(motors))
         if unknown:
             raise IdentificationError(
                 f"drive gains for {unknown}, which are not joints of the model "
-                f"({', '.join(model.joint_names)})"
+                f"({', '.join(model.joint_names)})" + (" or motors" if motors else "")
             )
         kw["drive_gains"] = {k: float(v) for k, v in gains.items()}
     return kw
