@@ -37,7 +37,10 @@ __all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
 #: each body's matrix inequality holds with this margin, in the body's own units (its mass,
 #: its radius of gyration), so that the answer is consistent beyond the solver's accuracy; it
 #: moves the optimum by about as much, relatively
-MARGIN = 1e-7
+MARGIN = 1e-8
+#: the solvers' settings: Clarabel's gaps and feasibility below its defaults (1e-8), so that
+#: the optimum is known well beyond the relative cost `certify` compares at
+_SETTINGS = {"CLARABEL": {"tol_gap_rel": 1e-10, "tol_gap_abs": 1e-10, "tol_feas": 1e-10}}
 #: the relative gap `certify` accepts by default
 CERTIFY_TOL = 1e-6
 
@@ -72,11 +75,13 @@ def _cvxpy():
     return cvxpy
 
 
-def _variable_scales(layout, theta_hat: torch.Tensor, prior) -> np.ndarray:
+def _variable_scales(layout, theta_hat: torch.Tensor, prior, reference=None) -> np.ndarray:
     """``(n_params,)`` the unit of each variable: per body ``m_s`` for the mass, ``m_s L`` for
     the first moments and ``m_s L^2`` for the inertias (``m_s`` the larger of the body's
     estimated and prior mass, ``L`` its radius of gyration), per friction term its size."""
     ref = theta_hat.abs() if prior is None else torch.maximum(theta_hat.abs(), prior.abs())
+    if reference is not None:
+        ref = torch.maximum(ref, reference.abs())
     inertial, friction = layout.split(ref)
     big = float(ref.max()) if float(ref.max()) > 0 else 1.0
     m_s = inertial[:, 0].clamp_min(1e-6 * big)
@@ -135,7 +140,12 @@ def _friction_signs(layout) -> list[int]:
 
 
 def solve_normalised(
-    problem: Problem, layout, parametrization: str, solver: str = "CLARABEL", margin: float = MARGIN
+    problem: Problem,
+    layout,
+    parametrization: str,
+    solver: str = "CLARABEL",
+    margin: float = MARGIN,
+    reference=None,
 ):
     """The minimiser of ``problem`` (`project`'s normalised objective) over the consistent set
     of ``parametrization`` shrunk by ``margin`` (each body's matrix inequality ``>= margin 1``
@@ -152,7 +162,8 @@ def solve_normalised(
     prior = None if problem.prior is None else problem.prior.cpu()
     # each body in its own units (its mass and its radius of gyration: the LMIs are invariant
     # under them), each friction term in its own, so that the solver sees O(1) numbers
-    D = torch.from_numpy(_variable_scales(layout, theta_hat, prior))
+    reference = None if reference is None else reference.cpu()
+    D = torch.from_numpy(_variable_scales(layout, theta_hat, prior, reference))
     y = cp.Variable(layout.n_params)
     x = cp.multiply(D.numpy(), y)
     # the objective is f_min + (x - x*)^T A (x - x*) (x* its unconstrained minimiser, A its
@@ -180,7 +191,7 @@ def solve_normalised(
         try:
             with warnings.catch_warnings():  # "optimal_inaccurate" is judged below
                 warnings.simplefilter("ignore", UserWarning)
-                prog.solve(solver=solver)
+                prog.solve(solver=solver, **_SETTINGS.get(solver, {}))
         except cp.error.SolverError as exc:
             raise ValueError(f"the semidefinite solver {solver} failed: {exc}") from None
         if prog.status not in ("optimal", "optimal_inaccurate") or y.value is None:
@@ -208,11 +219,14 @@ def project_convex(
     ridge: float = 1e-8,
     solver: str = "CLARABEL",
     margin: float = 0.0,
+    reference=None,
 ) -> ConvexProjection:
     """`project`'s problem (the same arguments and objective) solved as a semidefinite program
     by cvxpy with ``solver`` (`solve_normalised`) over the closure of the consistent set
     (``margin=0``): its optimum is a lower bound of every consistent parameter vector's
-    objective, the certificate of `project`'s answer (`certify`).
+    objective, the certificate of `project`'s answer (`certify`). ``reference``: a theta
+    ``(n_params,)`` whose sizes set the solver's units beside theta_hat's and the prior's
+    (e.g. `project`'s answer; the units change the numbers the solver sees, not the problem).
 
     Raises:
         ImportError: without cvxpy.
@@ -221,7 +235,11 @@ def project_convex(
     layout, _, problem, unit, m_unit = normalised_problem(
         theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale, ridge
     )
-    theta_n, _, status = solve_normalised(problem, layout, parametrization, solver, margin)
+    if reference is not None:
+        reference = torch.as_tensor(reference, dtype=torch.float64) / unit
+    theta_n, _, status = solve_normalised(
+        problem, layout, parametrization, solver, margin, reference
+    )
     objective = float(problem.objective(theta_n)) * unit**2 * m_unit
     return ConvexProjection(theta_n * unit, objective, status, solver)
 

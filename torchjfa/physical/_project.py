@@ -230,9 +230,11 @@ def project(
             semidefinite solver (cvxpy with Clarabel), and that global optimum is one more
             start for LBFGS, which then polishes it in the parametrisation; the description's
             values where the data are silent come from there (LBFGS alone can stall at a
-            vanishing mass). ``"lbfgs"``: the starts above only (a local optimum of a
-            non-convex problem). `torchjfa.physical.certify` compares the result with the
-            convex optimum.
+            vanishing mass). The program is solved once more in the units of LBFGS's answer
+            (an optimum far from theta_hat's sizes, a barely excited body's, is out of the
+            first solve's reach) and polished again when that is lower. ``"lbfgs"``: the
+            starts above only (a local optimum of a non-convex problem).
+            `torchjfa.physical.certify` compares the result with the convex optimum.
 
     Returns:
         A `ProjectionResult`: ``.theta`` (consistent), ``.virtual`` (the fitted module), the
@@ -271,17 +273,15 @@ def project(
             start = cls.from_theta(optimum, layout)  # inside the set by the solver's margin
         except ValueError:  # the solver did not reach an optimum: the other starts remain
             start = None
+    solve = {"warm_start": warm_start, "max_iter": int(max_iter), "tol": float(tol)}
     with single_thread():
         fitted, n_iter, n_eval, converged = _solve(
-            cls,
-            layout,
-            problem,
-            warm_start=warm_start,
-            max_iter=int(max_iter),
-            tol=float(tol),
-            verbose=verbose,
-            start=start,
+            cls, layout, problem, **solve, verbose=verbose, start=start
         )
+    if solver == "sdp" and not _consistent_as_given(cls, layout, problem):
+        fitted, more = _rescaled_sdp(cls, layout, problem, parametrization, fitted, solve)
+        n_iter, n_eval = n_iter + more[0], n_eval + more[1]
+        converged = converged if more[2] is None else more[2]
     result = _result(
         cls,
         fitted,
@@ -444,6 +444,33 @@ def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose,
     module = starts[min(finite)[1]] if finite else exact
     phi, k, e, converged = minimise(module, problem, max_iter=max_iter, tol=tol, verbose=verbose)
     return cls(layout, phi=phi), n_iter + k, n_eval + e, converged
+
+
+def _rescaled_sdp(cls, layout, problem: Problem, parametrization: str, fitted, solve: dict):
+    """The semidefinite program once more, its variables in the units of LBFGS's answer.
+
+    The first solve takes each body's units from theta_hat and the prior; where the optimum
+    lies far from them (a body the data barely reach, whose mass runs to thousands of times
+    theta_hat's) the interior-point method stops short of it. In units of ``fitted``'s theta
+    it reaches it; when that optimum is lower, LBFGS polishes from it and the better of the
+    two is kept. Returns ``(module, (iterations, evaluations, converged or None))``."""
+    from ._convex import solve_normalised
+
+    with torch.no_grad():
+        theta = fitted()
+    try:
+        optimum, _, _ = solve_normalised(problem, layout, parametrization, reference=theta)
+    except ValueError:
+        return fitted, (0, 0, None)
+    if not float(problem.loss(optimum)) < float(problem.loss(theta)):
+        return fitted, (0, 0, None)
+    with single_thread():
+        polished, k, e, converged = _solve(
+            cls, layout, problem, **solve, verbose=False, start=cls.from_theta(optimum, layout)
+        )
+    with torch.no_grad():
+        better = float(problem.loss(polished())) < float(problem.loss(theta))
+    return (polished, (k, e, converged)) if better else (fitted, (k, e, None))
 
 
 def _truncated(theta_hat: torch.Tensor, M: torch.Tensor, rcond: float = 1e-8) -> torch.Tensor:
