@@ -79,3 +79,38 @@ def test_the_exported_urdf_gives_the_identified_rigid_body_torques_in_pinocchio(
         )
         tau = torch.from_numpy(pin.rnea(pm, data, qq, vv, aa).copy())[order]
         assert torch.allclose(tau, want[k], rtol=0, atol=1e-9 * float(want[k].abs().max()))
+
+
+def test_a_urdf_robot_is_written_as_mjcf_that_mujoco_simulates_as_identified(tmp_path):
+    """MuJoCo's URDF importer makes the MJCF; the identified inertials, armature and viscous
+    friction then give MuJoCo's inverse dynamics the model's torques, and the Coulomb terms
+    are the joints' friction loss."""
+    model = RigidBodyModel.from_urdf(
+        torchjfa.robots.path("panda_arm"), friction=("viscous", "coulomb", "armature")
+    )
+    inertial, terms = model.layout.split(model.nominal_theta)
+    inertial = inertial.clone()
+    inertial[:, 0] *= 1.2  # other masses than the description's (first moments and inertias
+    inertial[:, 1:] *= 1.2  # scale with them: still consistent)
+    g = torch.Generator().manual_seed(0)
+    terms = 0.1 + torch.rand(terms.shape, generator=g, dtype=torch.float64)
+    theta = model.layout.join(inertial, terms)
+    model.write_mjcf(theta, tmp_path / "panda.xml")
+    mj = mujoco.MjModel.from_xml_path(str(tmp_path / "panda.xml"))
+    mj.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # no friction loss, limits
+    data = mujoco.MjData(mj)
+    without_dry = model.with_joint_terms(("viscous", "armature"))
+    keep = [model.friction.index(k) for k in without_dry.friction]
+    theta_wet = without_dry.layout.join(inertial, terms[:, keep])
+    order = [mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
+    dofs = [int(mj.jnt_dofadr[j]) for j in order]
+    for _ in range(5):
+        q, qd, qdd = (torch.randn(7, generator=g, dtype=torch.float64) for _ in range(3))
+        data.qpos[dofs], data.qvel[dofs], data.qacc[dofs] = q.numpy(), qd.numpy(), qdd.numpy()
+        mujoco.mj_inverse(mj, data)
+        expected = without_dry.inverse_dynamics(q, qd, qdd, theta_wet)
+        got = torch.as_tensor(data.qfrc_inverse[dofs])
+        assert torch.allclose(got, expected, rtol=1e-9, atol=1e-9 * float(expected.abs().max()))
+    fc = terms[:, model.friction.index("coulomb")]
+    for j, dof in enumerate(dofs):
+        assert mj.dof_frictionloss[dof] == float(fc[j])

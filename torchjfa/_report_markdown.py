@@ -175,7 +175,7 @@ def _header(report, s: Mapping[str, object]) -> list[str]:
         *([f"- cut-off: {settings['cutoff']}"] if settings.get("cutoff") else []),
         *([f"- armature: {settings['armature']}"] if settings.get("armature") else []),
         *(
-            [f"- the description with the identified parameters: `{settings['description_file']}`"]
+            [f"- the description with the identified parameters: {settings['description_file']}"]
             if settings.get("description_file")
             else []
         ),

@@ -279,22 +279,32 @@ class IdentificationReport:
 
     # ------------------------------------------------------------------------- writing
     def _write_description(self, out: Path) -> dict[str, Path]:
-        """The robot's description with the identified parameters (``identified.urdf`` or
-        ``identified.xml``: inertials, and the joint terms the format holds), when they are
-        consistent; records in ``settings["description_file"]`` what was written or why not."""
-        urdf = self.model.source_format == "urdf"
-        path = out / ("identified.urdf" if urdf else "identified.xml")
+        """The robot's description with the identified parameters, when they are consistent:
+        ``identified.xml`` (MJCF: inertials, armature, damping, friction loss, a motor's terms
+        on a fixed tendon) and, for a URDF robot, ``identified.urdf`` (inertials, ``<dynamics
+        damping friction>``). Records in ``settings["description_file"]`` what was written or
+        why not. Returns ``"description"`` (the file in the description's own format) and
+        ``"mjcf"``."""
         if not self.consistency.weakly_ok:
             self.settings["description_file"] = "not written: the parameters are not consistent"
             return {}
-        try:
-            write = self.model.write_urdf if urdf else self.model.write_mjcf
-            write(self.result.theta, path)
-        except (ValueError, OSError) as exc:
-            self.settings["description_file"] = f"not written: {exc}"
-            return {}
-        self.settings["description_file"] = path.name
-        return {"description": path}
+        files = {"mjcf": out / "identified.xml"}
+        if self.model.source_format == "urdf":
+            files["description"] = out / "identified.urdf"
+        written, failed = {}, []
+        for key, path in files.items():
+            write = self.model.write_urdf if path.suffix == ".urdf" else self.model.write_mjcf
+            try:
+                write(self.result.theta, path)
+            except (ValueError, OSError) as exc:
+                failed.append(f"{path.name} not written: {exc}")
+                continue
+            written[key] = path
+        if "description" not in files and "mjcf" in written:
+            written["description"] = written["mjcf"]
+        names = sorted({p.name for p in written.values()})
+        self.settings["description_file"] = "; ".join([f"`{n}`" for n in names[::-1]] + failed)
+        return written
 
     def markdown(self, images: Mapping[str, str] | None = None) -> str:
         """The report as Markdown (``images``: caption -> relative PNG path), one section after

@@ -6,6 +6,7 @@ log recorded at the motors."""
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -140,6 +141,10 @@ def test_the_command_identifies_a_log_recorded_at_the_motors(arm, tmp_path):
     assert code == 0
     saved = torchjfa.io.read_identified(out / "model.npz")
     assert saved.model.transmission == Transmission(base.joint_names, RATIO)
+    # the description written back both ways: MJCF holds the motors as fixed tendons
+    assert (out / "identified.urdf").is_file()
+    tendons = ET.parse(out / "identified.xml").getroot().find("tendon")
+    assert sorted(el.get("name") for el in tendons) == sorted(motors)
     report = (out / "report.md").read_text()
     assert "panda_joint7_motor" in report and "converted to the joints" in report
     # the motor-side log is read as the joints see it: the saved model predicts it

@@ -15,7 +15,7 @@ import numpy as np
 
 from ._tree import Frame, KinematicTree, inertial_np, lump, pk_children, quat_matrix
 
-__all__ = ["tree_from_mjcf"]
+__all__ = ["tree_from_mjcf", "mjcf_from_urdf"]
 
 
 def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree, object, object]:
@@ -213,3 +213,42 @@ def _pk_chain_from_mjcf(text: str, model):
     )
     root_frame.children = frame_of(0).children
     return pk.chain.Chain(root_frame)
+
+
+#: URDF elements MuJoCo's importer should not see: geometry whose meshes may not be found
+#: (contacts are not the identification's business) and tags for other tools
+_URDF_DROPPED = ("visual", "collision")
+_URDF_TOP_DROPPED = ("gazebo", "transmission", "ros2_control")
+
+
+def mjcf_from_urdf(text: str) -> str:
+    """The MJCF of a URDF robot, as MuJoCo's URDF importer compiles it: the same links (bodies,
+    fixed links kept as bodies without joints), joints, limits and inertials, gravity
+    ``(0, 0, -9.81)`` m/s^2, no geometry (visuals and collisions are dropped, so that no mesh
+    needs to be found).
+
+    Raises:
+        ValueError: if MuJoCo cannot compile it.
+    """
+    import xml.etree.ElementTree as ET
+
+    import mujoco
+
+    root = ET.fromstring(text)
+    for tag in _URDF_TOP_DROPPED:
+        for el in root.findall(tag):
+            root.remove(el)
+    for link in root.findall("link"):
+        for tag in _URDF_DROPPED:
+            for el in link.findall(tag):
+                link.remove(el)
+    for el in root.findall("mujoco"):
+        root.remove(el)
+    ext = ET.SubElement(root, "mujoco")
+    ET.SubElement(ext, "compiler", discardvisual="true", fusestatic="false", balanceinertia="false")
+    try:
+        spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+        spec.compile()
+        return spec.to_xml()
+    except Exception as exc:  # MuJoCo raises ValueError, and others for some specs
+        raise ValueError(f"MuJoCo cannot compile this URDF: {exc}") from None

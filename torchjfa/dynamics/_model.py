@@ -532,7 +532,8 @@ class RigidBodyModel(FrameKinematics):
         write_urdf(self, self._check_theta(theta), path)
 
     def write_mjcf(self, theta, path: str | os.PathLike) -> None:
-        """Write the description with theta's inertials (MJCF models); see `_writeback`."""
+        """Write the description with theta's inertials as MJCF (a URDF model through MuJoCo's URDF
+        importer); see `_writeback`."""
         from ._writeback import write_mjcf
 
         write_mjcf(self, self._check_theta(theta), path)

@@ -172,16 +172,35 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
                 ET.SubElement(fixed, "joint", joint=joint, coef=_fmt(coef))
 
 
+def _as_mjcf(model, theta: torch.Tensor):
+    """A URDF model as the MJCF model MuJoCo makes of it, with theta in that model's order."""
+    from ._mjcf import mjcf_from_urdf
+
+    other = (
+        type(model)
+        .from_mjcf(
+            mjcf_from_urdf(model.source_xml),
+            friction=model.friction,
+            gravity=model.gravity.tolist(),
+            coulomb_velocity=model.coulomb_velocity,
+        )
+        .with_transmission(model.transmission)
+    )
+    inertial, terms = model.layout.split(theta.detach().to(torch.float64).cpu())
+    order = [model.joint_names.index(j) for j in other.joint_names]
+    return other, other.layout.join(inertial[order], terms[order])
+
+
 def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
-    """Write ``model.source_xml`` with theta's inertials to ``path`` (MJCF models only).
+    """Write ``model.source_xml`` with theta's inertials to ``path`` as MJCF.
 
     The ``<inertial>`` elements of the joints' bodies are replaced (numbers written in full
     precision); bodies must be named and defined in the main file (not in an ``<include>``).
+    A URDF model is first turned into MJCF by MuJoCo's URDF importer
+    (`torchjfa.dynamics._mjcf.mjcf_from_urdf`: links as bodies, no geometry).
     """
-    if model.source_format != "mjcf":
-        raise ValueError(
-            f"write_mjcf needs a model read from MJCF; this one is {model.source_format}"
-        )
+    if model.source_format == "urdf":
+        model, theta = _as_mjcf(model, theta)
     inertials = _values(model, theta)
     parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
     root = ET.fromstring(model.source_xml, parser=parser)
