@@ -5,9 +5,11 @@
     torchjfa identify robot.urdf run1.csv run2.csv --drive-gains 10,10.7,8.5,9,9.5,10.1
     torchjfa evaluate result/model.npz run3.csv --out evaluation/
     torchjfa evaluate result/model.npz --robot head
+    torchjfa simulate robot.urdf --trajectory traj/trajectory.npz --frictionloss 0.3 --out log.csv
 
 A thin shell over `torchjfa.identify` (read and prepare the log, moments, estimator,
-projection, report), `torchjfa.sim` (simulate, evaluate: these need MuJoCo) and
+projection, report), `torchjfa.sim` (simulate, evaluate: these need MuJoCo; their
+sub-commands are in `torchjfa._cli_simulate`) and
 `torchjfa.excitation` (excite). Bad input
 (a missing column, an unknown joint, NaN rows, time going backwards, too few samples, a robot
 file that does not parse) ends with one line on stderr and exit status 2, not a traceback;
@@ -19,8 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shlex
 import sys
 from pathlib import Path
 
@@ -28,14 +28,10 @@ from ._cli_identify import add_identify, add_option
 from ._cli_identify import identify_options as identify_options
 from .estimators import available as _estimators
 from .identification._options import IdentificationError
-from .robots import SIMULATED
 
 __all__ = ["main", "ESTIMATORS"]
 
 ESTIMATORS = _estimators()  # the library's; a registered one is taken by torchjfa.identify
-
-_SIM_ROBOTS = tuple(SIMULATED)  # the simulated robots (MuJoCo is imported only to simulate)
-
 
 #: bad input from the user: printed as one line, exit status 2 (the flow's own error)
 UsageError = IdentificationError
@@ -85,45 +81,10 @@ def load_model(robot: str, friction: tuple[str, ...] | None = None):
 
 # ------------------------------------------------------------------------------ simulate
 def cmd_simulate(args) -> int:
-    from .data import JointLog, write_log
-    from .sim import SensorNoise, generate_log
+    """``torchjfa simulate`` (`torchjfa._cli_simulate`)."""
+    from ._cli_simulate import cmd_simulate as run
 
-    noise = SensorNoise().scaled(args.noise_scale)
-    trajectory = None
-    if args.trajectory:  # a trajectory written by torchjfa excite
-        from .excitation._cli import simulation_reference
-
-        try:
-            trajectory = simulation_reference(args.trajectory, args.robot)
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-    log = generate_log(
-        args.robot,
-        n_samples=args.n_samples,
-        unmodeled=not args.no_unmodeled,
-        noise=noise,
-        seed=args.seed,
-        progress=not args.quiet,
-        trajectory=trajectory,
-    )
-    out = Path(args.out)
-    if out.suffix.lower() == ".npz" and args.full:
-        log.save(out)
-    else:
-        kept = JointLog(
-            t=log.t,
-            q=log.q,
-            qd=None if args.no_velocity else log.qd,
-            tau=log.tau,
-            joint_names=log.joint_names,
-        )
-        write_log(kept, out)
-    print(
-        f"wrote {log.n_samples} samples ({log.n_samples / log.control_rate:.1f} s at "
-        f"{log.control_rate:g} Hz) of the simulated {args.robot} to {out}; identify with:\n"
-        f"  torchjfa identify {args.robot} {shlex.quote(str(out))} --out result/"
-    )
-    return 0
+    return run(args)
 
 
 # ------------------------------------------------------------------------------ excite
@@ -144,7 +105,10 @@ def cmd_evaluate(args) -> int:
             raise UsageError("give logs or --robot (a simulated robot), not both")
         return _evaluate_logs(args)
     if args.robot is None:
-        raise UsageError("give the logs to evaluate on, or --robot head|arm for a simulated robot")
+        raise UsageError(
+            "give the logs to evaluate on, or --robot ROBOT (head, arm, or a URDF or MJCF "
+            "description) to evaluate the model in simulation"
+        )
     return _evaluate_simulated(args)
 
 
@@ -164,58 +128,10 @@ def _evaluate_logs(args) -> int:
 
 
 def _evaluate_simulated(args) -> int:
-    from .io import read_identified
-    from .report import predicted_torques, torque_errors
-    from .sim import generate_log, random_trajectory
+    """``torchjfa evaluate MODEL --robot ROBOT`` (`torchjfa._cli_simulate`)."""
+    from ._cli_simulate import evaluate_simulated
 
-    if not os.path.isfile(args.model):
-        raise UsageError(f"no model file {args.model!r}")
-    try:
-        ident = read_identified(args.model)
-    except ValueError as exc:  # not a model file, or a damaged one: the message says which
-        raise UsageError(str(exc)) from None
-    model, theta = ident.model, ident.theta
-    log = generate_log(
-        args.robot, n_samples=args.n_samples, seed=args.seed, progress=not args.quiet
-    )
-    try:
-        log = log.reorder(model.joint_names)
-    except ValueError:
-        raise UsageError(
-            f"the model's joints {model.joint_names} are not the simulated {args.robot}'s "
-            f"{log.joint_names}"
-        ) from None
-    q, qd, qdd, tau = (getattr(log, k + "_true") for k in ("q", "qd", "qdd", "tau"))
-    pred = predicted_torques(model, theta, q, qd, qdd, tau)
-    nmse, rms = torque_errors(tau, pred)
-    print(f"{args.robot}: torque prediction on a fresh noiseless trajectory (seed {args.seed})")
-    print(f"{'joint':<16} {'nMSE':>10} {'RMS [N m]':>10}")
-    for j, name in enumerate(model.joint_names):
-        print(f"{name:<16} {float(nmse[j]):>10.4g} {float(rms[j]):>10.4g}")
-    print(f"{'mean':<16} {float(nmse.mean()):>10.4g} {float(rms.pow(2).mean().sqrt()):>10.4g}")
-    out = {"nmse": nmse.tolist(), "rms": rms.tolist()}
-    if not args.no_control:
-        from .sim import evaluate_control, load_robot
-
-        traj = random_trajectory(load_robot(args.robot), seed=args.seed + 1)
-        res = evaluate_control(
-            args.robot, model, {"identified": theta}, traj, duration=args.control_seconds
-        )["identified"]
-        if res.success:
-            print(
-                f"computed-torque control for {args.control_seconds:g} s: RMS position error "
-                f"{res.mean_rms_position:.4g} rad, RMS feedback {res.mean_rms_feedback:.4g} N m"
-            )
-        else:
-            print(f"computed-torque control FAILED: {res.reason}")
-        out["control"] = {
-            "success": res.success,
-            "reason": res.reason,
-            "rms_position": None if not res.success else res.mean_rms_position,
-        }
-    if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=1))
-    return 0
+    return evaluate_simulated(args)
 
 
 # ------------------------------------------------------------------------------ payload
@@ -271,36 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_simulate(sub) -> argparse.ArgumentParser:
     """The ``simulate`` sub-command's parser (runs `cmd_simulate`)."""
-    p = sub.add_parser(
-        "simulate",
-        help="simulate a robot tracking an excitation and write its log",
-        description="Simulate the Sarcos-like head (7 DoF) or arm (10 DoF) in MuJoCo with "
-        "sensor noise and write a log as a real robot would give it: t, q_<joint>, "
-        "qd_<joint>, tau_<joint> (no accelerations).",
-    )
-    p.add_argument("robot", choices=_SIM_ROBOTS, help="the simulated robot")
-    p.add_argument("--out", required=True, help="output: .csv, .npz or .parquet")
-    p.add_argument("--n-samples", type=int, default=50_000, help="samples at the control rate")
-    p.add_argument("--seed", type=int, default=0, help="seed of the excitation and the noise")
-    p.add_argument("--noise-scale", type=float, default=1.0, help="x the default sensor noise")
-    p.add_argument(
-        "--no-unmodeled",
-        action="store_true",
-        help="rigid-body dynamics only (no armature, friction, ...)",
-    )
-    p.add_argument("--no-velocity", action="store_true", help="leave out the velocity columns")
-    p.add_argument(
-        "--full",
-        action="store_true",
-        help="with .npz: the whole SimulatedLog, ground truth included",
-    )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument(
-        "--trajectory",
-        default=None,
-        metavar="PATH",
-        help="track this trajectory.npz from torchjfa excite (default: a random excitation)",
-    )
+    from ._cli_simulate import add_simulate
+
+    p = add_simulate(sub)
     p.set_defaults(func=cmd_simulate)
     return p
 
@@ -314,8 +203,10 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
         "read as identify reads it, its rest at the ends dropped, prepared at the model's own "
         "cut-off (or --cutoff), and the predicted torques compared with the measured, "
         "unfiltered torques; per-joint RMS and nMSE beside the description's, a figure per "
-        "log and evaluation.json. With --robot head|arm instead: the torques of a fresh "
-        "noiseless trajectory of the simulated robot and computed-torque control in MuJoCo.",
+        "log and evaluation.json. With --robot ROBOT instead (head, arm, a shipped "
+        "description or a URDF or MJCF file, simulated as torchjfa simulate does): the "
+        "torques of a fresh noiseless trajectory of the simulated robot and computed-torque "
+        "control with the model in MuJoCo.",
     )
     p.add_argument("model", help="model.npz written by identify")
     p.add_argument(
@@ -332,7 +223,11 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="write no figures (with logs)")
     _add_reading(p)
     p.add_argument(
-        "--robot", choices=_SIM_ROBOTS, default=None, help="a simulated robot instead of logs"
+        "--robot",
+        default=None,
+        metavar="ROBOT",
+        help="evaluate in simulation instead of on logs: head, arm, a shipped description "
+        "or a URDF or MJCF file",
     )
     p.add_argument("--n-samples", type=int, default=8400, help="samples of the test trajectory")
     p.add_argument("--seed", type=int, default=100, help="seed of the test trajectory")
@@ -342,6 +237,9 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("--json", default=None, help="also write the numbers to this JSON file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from ._cli_simulate import add_simulation_options
+
+    add_simulation_options(p)
     p.set_defaults(func=cmd_evaluate)
     return p
 

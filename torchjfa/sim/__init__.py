@@ -1,7 +1,8 @@
 """Simulated Sarcos-like robots in MuJoCo: models, identification data, controllers.
 
 Use this package to rebuild the seed paper's robot experiments without the robots:
-`load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects,
+`load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects
+(`load_description` compiles any URDF or MJCF description the same way, for the same uses),
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
 of the robot tracking a periodic excitation, and `computed_torque` evaluates identified
 parameters in closed loop. `regressor_noise` and `PeriodNoise` (the noise from the repeated
@@ -14,6 +15,10 @@ from ..data import regressor_noise as regressor_noise
 from ._control import ControlResult as ControlResult
 from ._control import computed_torque as computed_torque
 from ._control import evaluate_control as evaluate_control
+from ._description import Description as Description
+from ._description import DescriptionError as DescriptionError
+from ._description import load_description as load_description
+from ._generate import DEFAULT_RATE as DEFAULT_RATE
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise
@@ -25,6 +30,7 @@ from ._robots import UNMODELED as UNMODELED
 from ._robots import load_robot as load_robot
 from ._robots import model_path as model_path
 from ._robots import robot_effects as robot_effects
+from ._robots import set_effects as set_effects
 from ._robots import true_parameters as true_parameters
 from ._trajectory import SinusoidTrajectory as SinusoidTrajectory
 from ._trajectory import random_trajectory as random_trajectory

@@ -32,7 +32,7 @@ import torch
 from .._joints import permutation
 from .._progress import progress_bar
 from ..dynamics import InverseDynamics, RigidBodyModel
-from ._generate import DEFAULT_RATES
+from ._generate import DEFAULT_RATE, DEFAULT_RATES
 from ._robots import check_hinge_robot, joint_names, joint_ranges, load_robot
 from ._trajectory import SinusoidTrajectory
 
@@ -318,7 +318,7 @@ def _track(m: mujoco.MjModel, run: _Run, tau_ref: np.ndarray, substeps: int, pro
 
 
 def evaluate_control(
-    robot: str,
+    robot: str | mujoco.MjModel,
     model: RigidBodyModel,
     thetas: Mapping[str, torch.Tensor],
     trajectory,
@@ -327,32 +327,43 @@ def evaluate_control(
     unmodeled: bool | Mapping = True,
     bandwidth_hz: float = 5.0,
     progress: bool = False,
+    control_rate: float | None = None,
 ) -> dict[str, ControlResult]:
     """Computed-torque control of the simulated robot with each parameter vector.
 
     Args:
-        robot: ``"head"`` or ``"arm"`` (control at its default rate).
+        robot: ``"head"`` or ``"arm"``, or a compiled ``mujoco.MjModel`` of a robot with one
+            gear-1 torque motor per hinge or slide joint (e.g. `load_description`'s
+            ``model``, simulated with the joint effects it has; not modified).
         model: the rigid-body model the parameters belong to.
         thetas: name -> ``(n_params,)`` parameters.
         trajectory: the held-out reference (a `SinusoidTrajectory`).
         duration: seconds of control per run.
-        unmodeled: the robot's joint effects (as `load_robot`).
+        unmodeled: a shipped robot's joint effects (as `load_robot`).
         bandwidth_hz: bandwidth of the error dynamics.
         progress: show a progress bar over the runs.
+        control_rate: Hz; default the robot's own (`DEFAULT_RATES`, `DEFAULT_RATE` for an
+            ``MjModel``).
 
     Returns:
         name -> `ControlResult` (``success=False`` is the paper's FAILURE).
     """
-    mj = load_robot(robot, unmodeled=unmodeled)
+    if isinstance(robot, mujoco.MjModel):
+        if unmodeled is not True:
+            raise ValueError("unmodeled applies to a shipped robot's name, not an MjModel")
+        mj, name, rate = robot, "robot", DEFAULT_RATE
+    else:
+        mj, name, rate = load_robot(robot, unmodeled=unmodeled), robot, DEFAULT_RATES[robot]
+    rate = rate if control_rate is None else float(control_rate)
     out = {}
-    with progress_bar(total=len(thetas), desc=f"control {robot}", enabled=progress) as bar:
+    with progress_bar(total=len(thetas), desc=f"control {name}", enabled=progress) as bar:
         for name, theta in thetas.items():
             out[name] = computed_torque(
                 mj,
                 InverseDynamics(model, theta),
                 trajectory,
                 duration=duration,
-                control_rate=DEFAULT_RATES[robot],
+                control_rate=rate,
                 bandwidth_hz=bandwidth_hz,
             )
             bar.update(1)

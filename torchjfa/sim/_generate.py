@@ -36,6 +36,7 @@ ripple, about 1-3 % of the RMS acceleration for these robots even without noise.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -49,9 +50,11 @@ from ._log import SensorNoise, SimulatedLog
 from ._robots import _fields, check_hinge_robot, joint_names, load_robot
 from ._trajectory import SinusoidTrajectory, random_trajectory
 
-__all__ = ["generate_log", "DEFAULT_RATES"]
+__all__ = ["generate_log", "DEFAULT_RATES", "DEFAULT_RATE"]
 
 DEFAULT_RATES = {"head": 420.0, "arm": 480.0}
+#: the control and sampling rate of any other robot (a description compiled for simulation), Hz
+DEFAULT_RATE = 500.0
 _PAD_SECONDS = 0.5
 
 
@@ -233,8 +236,22 @@ def _derivatives(t, q_meas, qd_meas, velocity_source: str, **kw) -> tuple[np.nda
     return der.first.numpy(), der.second.numpy()
 
 
+def _robot_model(robot, unmodeled, name: str | None) -> tuple[mujoco.MjModel, str, float]:
+    """The model to simulate (a shipped robot compiled, or a copy of the one given), its name
+    and its default control rate, Hz."""
+    if isinstance(robot, mujoco.MjModel):
+        if unmodeled is not True:
+            raise ValueError(
+                "unmodeled applies to a shipped robot's name; set the joint effects on the "
+                "MjModel itself (torchjfa.sim.set_effects)"
+            )
+        return copy.copy(robot), "robot" if name is None else str(name), DEFAULT_RATE
+    model = load_robot(robot, unmodeled=unmodeled)
+    return model, robot if name is None else str(name), DEFAULT_RATES[robot]
+
+
 def generate_log(
-    robot: str,
+    robot: str | mujoco.MjModel,
     *,
     n_samples: int = 500_000,
     unmodeled: bool | Mapping[str, object] = True,
@@ -251,16 +268,22 @@ def generate_log(
     noisy_feedback: bool = False,
     seed: int | None = 0,
     progress: bool = False,
+    name: str | None = None,
 ) -> SimulatedLog:
     """Simulate a robot tracking a periodic excitation and record a noisy log.
 
     Args:
-        robot: ``"head"`` or ``"arm"`` (see `load_robot`).
+        robot: ``"head"`` or ``"arm"`` (see `load_robot`), or a compiled ``mujoco.MjModel``
+            of a fixed-base robot with hinge and slide joints and one gear-1 torque motor per
+            joint in joint order (e.g. `load_description`'s ``model``), simulated with the
+            joint effects it has; it is copied, not modified.
         n_samples: samples to record (at the control rate); the first sample starts a period.
-        unmodeled: which joint effects the robot has, as in `load_robot`.
+        unmodeled: which joint effects a shipped robot has, as in `load_robot` (leave it at
+            True with an ``MjModel``).
         trajectory: the reference; default ``random_trajectory(model, seed=...)`` (a 4 s
             period). Its period times the control rate must be a whole number of samples.
-        control_rate: control and sampling rate, Hz; default 420 (head) or 480 (arm).
+        control_rate: control and sampling rate, Hz; default 420 (head), 480 (arm) or
+            `DEFAULT_RATE` (500, an ``MjModel``).
         substeps: physics steps per control step (the timestep is their ratio).
         noise: `SensorNoise` (default ``SensorNoise()``; ``SensorNoise.zero()`` for none).
         velocity_source: ``"sensor"`` (qd is the noisy velocity sensor, qdd its derivative)
@@ -273,6 +296,8 @@ def generate_log(
             stay at the true state).
         seed: seeds the trajectory (when not given) and the noise (numpy Generators).
         progress: show a progress bar.
+        name: the robot's name in the log and the progress bar (default: ``robot`` itself, or
+            ``"robot"`` for an ``MjModel``).
 
     Returns:
         A `SimulatedLog` of ``n_samples`` samples.
@@ -282,7 +307,7 @@ def generate_log(
             trajectory with the wrong number of joints.
         RuntimeError: if the simulation diverges.
     """
-    model = load_robot(robot, unmodeled=unmodeled)
+    model, name, default_rate = _robot_model(robot, unmodeled, name)
     check_hinge_robot(model)
     n_dof = model.njnt
     n_samples = _int(n_samples, "n_samples", 2)
@@ -292,7 +317,7 @@ def generate_log(
         raise ValueError(
             f"velocity_source must be 'sensor' or 'differentiate', got {velocity_source!r}"
         )
-    rate = DEFAULT_RATES[robot] if control_rate is None else float(control_rate)
+    rate = default_rate if control_rate is None else float(control_rate)
     if not np.isfinite(rate) or rate <= 0:
         raise ValueError(f"control_rate must be positive, got {control_rate}")
     noise = SensorNoise() if noise is None else noise
@@ -314,7 +339,7 @@ def generate_log(
         clock,
         substeps,
         feedback_noise=(n_q, n_qd) if noisy_feedback else None,
-        name=robot,
+        name=name,
         progress=progress,
     )
     t_rec = (clock.start + np.arange(clock.n_rec)) * clock.h
@@ -331,7 +356,7 @@ def generate_log(
 
     fields = _fields(model)
     return SimulatedLog(
-        robot=robot,
+        robot=name,
         joint_names=joint_names(model),
         t=out(t_rec),
         q=out(q_meas),

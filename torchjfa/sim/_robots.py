@@ -60,6 +60,7 @@ __all__ = [
     "UNMODELED",
     "model_path",
     "load_robot",
+    "set_effects",
     "robot_effects",
     "true_parameters",
 ]
@@ -138,16 +139,37 @@ def load_robot(robot: str, *, unmodeled: bool | Mapping[str, object] = True) -> 
     unknown = [k for k in unmodeled if k not in EFFECTS]
     if unknown:
         raise ValueError(f"unknown effects {unknown}; choose from {EFFECTS}")
-    n = model.njnt
+    settings: dict[str, object] = {}
     for k in EFFECTS:
-        if k not in unmodeled:
-            value: object = k == "damping"
-        else:
-            value = unmodeled[k]
+        value = unmodeled.get(k, k == "damping")
         if isinstance(value, (bool, np.bool_)):
             if not value:
-                fields[k][:] = 0.0
+                settings[k] = 0.0
             continue
+        settings[k] = value
+    set_effects(model, settings)
+    return model
+
+
+def set_effects(model: mujoco.MjModel, effects: Mapping[str, object]) -> None:
+    """Set joint effects of a compiled model in place (the other effects stay as they are).
+
+    Args:
+        model: a robot whose joints are all hinges or slides (dof index = joint index).
+        effects: name from ``EFFECTS`` -> a float (every joint) or an ``(n_dof,)`` sequence in
+            MuJoCo joint order; units N m s/rad (damping), kg m^2 (armature), N m
+            (frictionloss), N m/rad (stiffness), with N and m in place of N m and rad for a
+            slide joint.
+
+    Raises:
+        ValueError: on an unknown effect, a wrong length, a negative or non-finite value.
+    """
+    unknown = [k for k in effects if k not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effects {unknown}; choose from {EFFECTS}")
+    n = model.njnt
+    values = {}
+    for k, value in effects.items():  # every value checked before any is set
         arr = np.asarray(value, dtype=np.float64)
         if arr.ndim == 0:
             arr = np.full(n, float(arr))
@@ -155,8 +177,10 @@ def load_robot(robot: str, *, unmodeled: bool | Mapping[str, object] = True) -> 
             raise ValueError(f"{k} must be a float or have shape ({n},), got shape {arr.shape}")
         if not np.all(np.isfinite(arr)) or np.any(arr < 0):
             raise ValueError(f"{k} must be finite and non-negative, got {arr.tolist()}")
+        values[k] = arr
+    fields = _fields(model)
+    for k, arr in values.items():
         fields[k][:] = arr
-    return model
 
 
 def joint_ranges(model: mujoco.MjModel) -> np.ndarray:
@@ -173,11 +197,13 @@ def joint_names(model: mujoco.MjModel) -> tuple[str, ...]:
 
 
 def check_hinge_robot(model: mujoco.MjModel) -> None:
-    """Raise ``ValueError`` unless every joint is a hinge and every joint has a gear-1 motor."""
+    """Raise ``ValueError`` unless every joint is a hinge or a slide (a fixed-base robot whose
+    dof index is its joint index) and every joint has a gear-1 motor."""
     if not isinstance(model, mujoco.MjModel):
         raise TypeError(f"expected a mujoco.MjModel, got {type(model)}")
-    if model.njnt == 0 or np.any(model.jnt_type != mujoco.mjtJoint.mjJNT_HINGE):
-        raise ValueError("the simulation needs a fixed-base robot with hinge joints only")
+    one_dof = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    if model.njnt == 0 or not np.all(np.isin(model.jnt_type, one_dof)):
+        raise ValueError("the simulation needs a fixed-base robot with hinge and slide joints only")
     if model.nu != model.njnt or not np.array_equal(
         np.asarray(model.actuator_trnid[:, 0]), np.arange(model.njnt)
     ):

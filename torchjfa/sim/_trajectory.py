@@ -116,6 +116,7 @@ def random_trajectory(
     range_fraction: float = 0.6,
     seed: int | None = 0,
     min_harmonic: int = 1,
+    velocity_limit=None,
 ) -> SinusoidTrajectory:
     """A random periodic excitation inside the robot's joint ranges.
 
@@ -138,6 +139,10 @@ def random_trajectory(
             as the default 1..8) when the period is long.
         range_fraction: fraction of the half range the motion may use, in ``(0, 1]``.
         seed: seed of the numpy Generator (an int, a SeedSequence or None).
+        velocity_limit: a float or ``(n_dof,)`` per joint, rad/s (m/s for a slide joint), or
+            None: a joint whose speed bound ``sum_k 2 pi n_k f0 |a_k|`` exceeds its limit has
+            its amplitudes scaled down to meet it (never up; ``inf`` for no limit). The draw
+            is the same with and without it.
 
     Returns:
         A `SinusoidTrajectory` with ``n_dof = model.njnt``.
@@ -164,6 +169,13 @@ def random_trajectory(
     weight = rng.uniform(0.5, 1.0, (n, n_terms)) / harmonic
     amplitude = weight / weight.sum(axis=1, keepdims=True) * (range_fraction * half)[:, None]
     phase = rng.uniform(0.0, 2.0 * np.pi, (n, n_terms))
+    if velocity_limit is not None:
+        amplitude = (
+            amplitude
+            * _speed_scale(amplitude, 2.0 * np.pi * base_frequency * harmonic, velocity_limit)[
+                :, None
+            ]
+        )
     return SinusoidTrajectory(
         base_frequency=base_frequency,
         offset=ranges.mean(axis=1),
@@ -171,3 +183,15 @@ def random_trajectory(
         harmonic=harmonic,
         phase=phase,
     )
+
+
+def _speed_scale(amplitude: np.ndarray, omega: np.ndarray, limit) -> np.ndarray:
+    """``(n_dof,)`` factors in (0, 1] that bring each joint's speed bound ``sum |a| w`` (rad/s)
+    to at most ``limit`` (a float or ``(n_dof,)``, rad/s, > 0; inf: no limit)."""
+    n = amplitude.shape[0]
+    limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (n,))
+    if np.any(np.isnan(limit)) or np.any(limit <= 0):
+        raise ValueError(f"velocity_limit must be positive, got {limit.tolist()}")
+    bound = np.sum(np.abs(amplitude) * omega, axis=1)
+    with np.errstate(divide="ignore"):
+        return np.minimum(1.0, np.where(bound > 0, limit / bound, 1.0))
