@@ -116,7 +116,9 @@ def _evaluate_logs(args) -> int:
     """``torchjfa evaluate MODEL LOG ...``: the model judged on real logs."""
     from .identification import evaluate
 
-    ev = evaluate(args.model, args.logs, _reading(args), cutoff_hz=args.cutoff)
+    ev = evaluate(
+        args.model, args.logs, _reading(args), cutoff_hz=args.cutoff, rollouts=args.rollouts
+    )
     for line in ev.lines():
         print(line)
     paths = ev.write(args.out, plots=not args.no_plots)
@@ -221,6 +223,13 @@ def _add_evaluate(sub) -> argparse.ArgumentParser:
         help="prepare the logs at this cut-off (default: the model's own)",
     )
     p.add_argument("--no-plots", action="store_true", help="write no figures (with logs)")
+    p.add_argument(
+        "--rollouts",
+        action="store_true",
+        help="with logs: also roll the identified model (its MJCF) and the description out in "
+        "MuJoCo from measured states under the measured torques, open loop, over 50, 200 and "
+        "500 ms, and compare positions and velocities with the log's",
+    )
     _add_reading(p)
     p.add_argument(
         "--robot",

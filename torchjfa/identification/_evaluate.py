@@ -6,7 +6,9 @@ model judged (the identification's own, stored in its ``model.npz``, unless one 
 prediction uses the prepared q, qd, qdd; the target is the measured torque, unfiltered
 (`torchjfa.identification.measured_torque`), so that models identified with different cut-offs
 are judged on the same target. The description's parameters (its inertials, no joint terms)
-are judged beside the identified ones.
+are judged beside the identified ones. With ``rollouts``, MuJoCo also rolls the identified
+model's MJCF and the description's out open loop on each log's measured torques
+(`torchjfa.sim.replay`): does the simulator move like the robot?
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -41,6 +43,8 @@ class Evaluation:
             fits by name (``"identified"``, and ``"description"`` when the description has
             mass).
         fits: the same fits over all the logs' samples together.
+        rollouts: source -> `torchjfa.sim.Replay` per log (``evaluate(..., rollouts=True)``),
+            else empty.
     """
 
     model: RigidBodyModel
@@ -48,6 +52,7 @@ class Evaluation:
     cutoff_hz: float
     logs: dict[str, tuple[JointLog, dict[str, TorqueFit]]]
     fits: dict[str, TorqueFit]
+    rollouts: dict = field(default_factory=dict)
 
     def summary(self) -> dict[str, object]:
         """The numbers as JSON-ready values: ``joint_names``, ``rms``, ``mean_rms``, ``nmse``,
@@ -77,6 +82,8 @@ class Evaluation:
             }
             for source, (log, fits) in self.logs.items()
         ]
+        if self.rollouts:
+            out["rollouts"] = {source: r.summary() for source, r in self.rollouts.items()}
         return out
 
     def lines(self) -> list[str]:
@@ -97,6 +104,9 @@ class Evaluation:
                 for n in names
             )
         )
+        for source, r in self.rollouts.items():
+            rows += ["", f"MuJoCo rollouts on {source} ({r.starts} per horizon; mean over joints)"]
+            rows += r.lines()
         return rows
 
     def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
@@ -116,6 +126,9 @@ class Evaluation:
                 paths[f"torques_{i}"] = out / f"torques_{i}.png"
                 fig = torques_figure(log, fits, kinds, paths[f"torques_{i}"], seconds=10.0)
                 plt.close(fig)
+            for i, r in enumerate(self.rollouts.values()):
+                paths[f"rollouts_{i}"] = out / f"rollouts_{i}.png"
+                plt.close(r.figure(paths[f"rollouts_{i}"]))
         return paths
 
 
@@ -125,6 +138,7 @@ def evaluate(
     options: Options | None = None,
     *,
     cutoff_hz: float | None = None,
+    rollouts: bool = False,
 ) -> Evaluation:
     """Judge an identified model on logs: per-joint RMS and nMSE against the measured torque.
 
@@ -138,6 +152,8 @@ def evaluate(
             apply.
         cutoff_hz: the cut-off to prepare the logs with, Hz (default: the one stored with the
             model, else `torchjfa.data.DEFAULT_CUTOFF_HZ`).
+        rollouts: also roll the identified model's MJCF and the description's out in MuJoCo
+            on each log (`torchjfa.sim.replay`; needs consistent parameters).
 
     Raises:
         IdentificationError: on a model file that cannot be read, or logs of other joints.
@@ -160,7 +176,26 @@ def evaluate(
     if not per_log:
         raise IdentificationError("no log to evaluate on")
     everything = concatenate([log for log, _ in per_log.values()])
-    return Evaluation(model, theta, cutoff, per_log, _fits(model, params, everything))
+    replays = _rollouts(model, theta, per_log) if rollouts else {}
+    return Evaluation(model, theta, cutoff, per_log, _fits(model, params, everything), replays)
+
+
+def _rollouts(model, theta, per_log) -> dict:
+    """`torchjfa.sim.replay` of the identified and the description's MuJoCo models per log."""
+    from ..sim import description_model, mujoco_model, offset_torques, replay
+
+    try:
+        identified = mujoco_model(model, theta)
+    except ValueError as exc:  # inconsistent parameters have no MJCF
+        raise IdentificationError(f"no MuJoCo rollouts: {exc}") from None
+    out = {}
+    for source, (log, _) in per_log.items():
+        models = {"identified": identified, "description": description_model(model)}
+        try:
+            out[source] = replay(models, log, offsets={"identified": offset_torques(model, theta)})
+        except ValueError as exc:
+            raise IdentificationError(f"{source}: no MuJoCo rollouts: {exc}") from None
+    return out
 
 
 def _fits(model, params, log: JointLog) -> dict[str, TorqueFit]:

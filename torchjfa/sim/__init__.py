@@ -5,7 +5,8 @@ Use this package to rebuild the seed paper's robot experiments without the robot
 (`load_description` compiles any URDF or MJCF description the same way, for the same uses),
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
 of the robot tracking a periodic excitation, and `computed_torque` evaluates identified
-parameters in closed loop. `regressor_noise` and `PeriodNoise` (the noise from the repeated
+parameters in closed loop; `replay` rolls identified (`mujoco_model`) and description
+(`description_model`) models out open loop on a real log's measured torques. `regressor_noise` and `PeriodNoise` (the noise from the repeated
 periods) live in `torchjfa.data` and are re-exported here; `load_log` reads a `SimulatedLog`
 file as one and any other log file as a `torchjfa.data.JointLog`.
 """
@@ -24,6 +25,12 @@ from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise
 from ._log import SimulatedLog as SimulatedLog
 from ._log import load_log as load_log
+from ._replay import HORIZONS as HORIZONS
+from ._replay import Replay as Replay
+from ._replay import description_model as description_model
+from ._replay import mujoco_model as mujoco_model
+from ._replay import offset_torques as offset_torques
+from ._replay import replay as replay
 from ._robots import EFFECTS as EFFECTS
 from ._robots import ROBOTS as ROBOTS
 from ._robots import UNMODELED as UNMODELED
