@@ -15,7 +15,7 @@ import numpy as np
 
 from ._tree import Frame, KinematicTree, inertial_np, lump, pk_children, quat_matrix
 
-__all__ = ["tree_from_mjcf", "mjcf_from_urdf"]
+__all__ = ["tree_from_mjcf", "mjcf_from_urdf", "strip_urdf_for_mujoco"]
 
 
 def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree, object, object]:
@@ -221,6 +221,32 @@ _URDF_DROPPED = ("visual", "collision")
 _URDF_TOP_DROPPED = ("gazebo", "transmission", "ros2_control")
 
 
+def strip_urdf_for_mujoco(root, *, keep: tuple[str, ...] = (), **compiler: str):
+    """Prepare a parsed URDF (``xml.etree`` root, changed in place) for MuJoCo's importer:
+    remove the other tools' tags and each link's ``<visual>`` and ``<collision>`` (except the
+    tags in ``keep``), and set the ``<mujoco><compiler>`` attributes ``compiler`` (e.g.
+    ``fusestatic="true"``) beside ``discardvisual="true"``. Returns the root."""
+    import xml.etree.ElementTree as ET
+
+    for tag in _URDF_TOP_DROPPED:
+        for el in root.findall(tag):
+            root.remove(el)
+    for link in root.iter("link"):
+        for tag in _URDF_DROPPED:
+            if tag not in keep:
+                for el in link.findall(tag):
+                    link.remove(el)
+    ext = root.find("mujoco")
+    if ext is None:
+        ext = ET.SubElement(root, "mujoco")
+    element = ext.find("compiler")
+    if element is None:
+        element = ET.SubElement(ext, "compiler")
+    for key, value in {"discardvisual": "true", **compiler}.items():
+        element.set(key, value)
+    return root
+
+
 def mjcf_from_urdf(text: str) -> str:
     """The MJCF of a URDF robot, as MuJoCo's URDF importer compiles it: the same links (bodies,
     fixed links kept as bodies without joints), joints, limits and inertials, gravity
@@ -234,18 +260,7 @@ def mjcf_from_urdf(text: str) -> str:
 
     import mujoco
 
-    root = ET.fromstring(text)
-    for tag in _URDF_TOP_DROPPED:
-        for el in root.findall(tag):
-            root.remove(el)
-    for link in root.findall("link"):
-        for tag in _URDF_DROPPED:
-            for el in link.findall(tag):
-                link.remove(el)
-    for el in root.findall("mujoco"):
-        root.remove(el)
-    ext = ET.SubElement(root, "mujoco")
-    ET.SubElement(ext, "compiler", discardvisual="true", fusestatic="false", balanceinertia="false")
+    root = strip_urdf_for_mujoco(ET.fromstring(text), fusestatic="false", balanceinertia="false")
     try:
         spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
         spec.compile()

@@ -39,13 +39,12 @@ import mujoco
 import numpy as np
 
 from .. import robots
+from ..dynamics._mjcf import strip_urdf_for_mujoco
 from ._robots import EFFECTS, _fields, check_hinge_robot, joint_names, set_effects
 
 __all__ = ["Description", "DescriptionError", "load_description", "description_path"]
 
 _ONE_DOF = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
-_URDF_DROPPED = ("visual", "collision")
-_URDF_TOP_DROPPED = ("gazebo", "transmission", "ros2_control")
 
 
 class DescriptionError(ValueError):
@@ -135,21 +134,7 @@ def _urdf_spec(path: str) -> tuple[mujoco.MjSpec, dict[str, float]]:
         raise DescriptionError(f"{path!r} is not well-formed XML: {exc}") from None
     if root.tag != "robot":
         raise DescriptionError(f"{path!r} is not a URDF (its root element is <{root.tag}>)")
-    for tag in _URDF_TOP_DROPPED:
-        for e in root.findall(tag):
-            root.remove(e)
-    for link in root.iter("link"):
-        for tag in _URDF_DROPPED:
-            for e in link.findall(tag):
-                link.remove(e)
-    ext = root.find("mujoco")
-    if ext is None:
-        ext = ET.SubElement(root, "mujoco")
-    compiler = ext.find("compiler")
-    if compiler is None:
-        compiler = ET.SubElement(ext, "compiler")
-    compiler.set("discardvisual", "true")
-    compiler.set("fusestatic", "true")
+    strip_urdf_for_mujoco(root, fusestatic="true")
     velocity = {}
     for joint in root.findall("joint"):
         limit = joint.find("limit")
