@@ -251,7 +251,7 @@ def test_the_polish_moves_each_limits_target_by_its_worst_excess():
     # (_SAFETY inside the limit) and shrinks, not below 0, by the worst room left; the
     # penalty then aims that much further inside. Written out from the dense-grid states.
     model = _model("head")
-    limits = limits_from_model(model, velocity=1.0)
+    limits = limits_from_model(model, velocity=1.0, acceleration=math.inf)
     q0 = 0.5 * (limits.position_low + limits.position_high)
     V = base_directions(model, limits, generator=torch.Generator().manual_seed(0))
     problem = _design._Design(model, limits, V, "d", None, None, period_grid(4.0, 60), q0, 0.25)
@@ -319,10 +319,11 @@ def test_limits_read_from_the_urdf_with_margin_and_overrides():
     span = 2 * 2.8973
     assert limits.position_low[0] == pytest.approx(-2.8973 + 0.1 * span, abs=1e-12)
     assert limits.position_high[0] == pytest.approx(2.8973 - 0.1 * span, abs=1e-12)
-    assert limits.velocity[0] == pytest.approx(2.175)
+    # the description's velocity less the default 15 % margin, reached from rest in 0.5 s
+    assert limits.velocity[0] == pytest.approx(0.85 * 2.175)
+    assert limits.acceleration[0] == pytest.approx(0.85 * 2.175 / 0.5)
     assert limits.torque[0] == pytest.approx(87.0)
     assert limits.torque[6] == pytest.approx(5.0)
-    assert np.all(np.isinf(limits.acceleration))
     with pytest.raises(ValueError, match="unknown joints"):
         limits_from_model(model, velocity={"elbow": 1.0})
     with pytest.raises(ValueError, match="position_margin"):

@@ -1,15 +1,18 @@
 """Optimal excitation trajectories for identification, designed before the log exists.
 
 Use this package to choose the motion a robot runs for identification: `limits_from_model`
-collects the limits (description and user), `optimize_excitation` optimises a periodic Fourier
-series (`FourierTrajectory`, at rest at a posture at the start of every period) for the
-D-optimality, condition number or E-optimality of the base-parameter information matrix,
-through the batched regressor with torch autograd, and checks the limits on a fine grid
-(`check_limits`); `random_excitation` is the library's random sum of sinusoids in the same
-limits, the baseline. ``torchjfa excite`` is the command line; `FourierTrajectory.to_sinusoid`
-hands the result to `torchjfa.sim.generate_log`.
+collects the limits (description and user; by default with margins, an acceleration limit, the
+mounting plane and self-collision), `optimize_excitation` optimises a periodic Fourier series
+(`FourierTrajectory`, at rest at a posture at the start of every period) for the D-optimality,
+condition number or E-optimality of the base-parameter information matrix, through the batched
+regressor with torch autograd, and checks every constraint on a fine grid (`check_limits`;
+`physical_margins` says what is left of each, in physical units); `random_excitation` is the
+library's random sum of sinusoids in the same limits, the baseline. ``torchjfa excite`` is the
+command line; `FourierTrajectory.to_sinusoid` hands the result to `torchjfa.sim.generate_log`.
 """
 
+from ._check import check_limits as check_limits
+from ._check import physical_margins as physical_margins
 from ._design import ExcitationResult as ExcitationResult
 from ._design import optimize_excitation as optimize_excitation
 from ._design import random_excitation as random_excitation
@@ -24,6 +27,5 @@ from ._information import soft_condition as soft_condition
 from ._information import trajectory_information as trajectory_information
 from ._limits import Limits as Limits
 from ._limits import WorkspaceBox as WorkspaceBox
-from ._limits import check_limits as check_limits
 from ._limits import constraint_violations as constraint_violations
 from ._limits import limits_from_model as limits_from_model

@@ -4,8 +4,7 @@
     torchjfa simulate head --trajectory traj/trajectory.npz --out log.csv
 
 `add_parser` registers the subcommand on the ``torchjfa`` parser, `run` runs it with the
-robot's `RigidBodyModel`; `simulation_reference` turns a written trajectory into the reference
-`torchjfa.sim.generate_log` tracks (``torchjfa simulate --trajectory``).
+robot's `RigidBodyModel`; ``torchjfa simulate --trajectory`` tracks what it writes.
 """
 
 from __future__ import annotations
@@ -19,9 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from .._cli_identify import friction_terms
+from ._geometry import DEFAULT_CAPSULE_RADIUS, DEFAULT_CLEARANCE
 from ._information import CRITERIA
+from ._limits import DEFAULT_ACCELERATION_TIME, DEFAULT_VELOCITY_MARGIN
 
-__all__ = ["add_parser", "run", "simulation_reference"]
+__all__ = ["add_parser", "run"]
 
 _DEFAULT_RATE = 200.0
 
@@ -55,10 +56,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="Optimise a periodic Fourier-series trajectory (at rest at a posture at the "
         "start of every period) for the identification of a robot: D-optimality (or the "
         "condition number, or E-optimality) of the base-parameter information matrix, through "
-        "the batched regressor with autograd, inside the position (with a margin), velocity, "
-        "acceleration, torque and workspace limits. Writes the trajectory (CSV, NPZ), its "
-        "coefficients, a report against a random sum of sinusoids in the same limits, and "
-        "plots.",
+        "the batched regressor with autograd, inside the position, velocity, acceleration, "
+        "torque and workspace limits. Safe by default: margins inside the description's "
+        "position and velocity limits, an acceleration limit where the description has none, "
+        "no part of the arm near or below the plane it is mounted on (z = 0 of the root frame "
+        "unless --floor says otherwise), and no self-collision (capsules along the links, and "
+        "the description's collision geometry through MuJoCo where it has some). Every "
+        "constraint is checked on a grid 10x finer than the output rate; the motion is shrunk "
+        "about the posture where it has to be, and when even that cannot hold a constraint "
+        "the command ends with an error naming each one. Writes the trajectory (CSV, NPZ), its coefficients, a report "
+        "(the margins left to every limit, in physical units) against a random sum of "
+        "sinusoids in the same limits, and plots.",
     )
     if p.formatter_class is argparse.HelpFormatter:  # keep a formatter the parent gives
         p.formatter_class = argparse.ArgumentDefaultsHelpFormatter  # show the defaults
@@ -89,21 +97,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--posture",
         type=_numbers,
         default=None,
-        help="q0 per joint; when not given the middle of the limits",
+        help="q0 per joint, rad (m); when not given the middle of the limits, moved to the "
+        "nearest posture that keeps the arm 5 cm beyond --clearance from the floor",
     )
-    p.add_argument("--position-margin", type=float, default=0.05, help="fraction of each range")
-    p.add_argument(
-        "--velocity-limit",
-        type=_numbers,
-        default=None,
-        help="rad/s, one or per joint; when not given the description's",
-    )
-    p.add_argument("--acceleration-limit", type=_numbers, default=None, help="rad/s^2")
-    p.add_argument("--torque-limit", type=_numbers, default=None, help="N m (nominal model)")
-    p.add_argument(
-        "--workspace", type=_box, action="append", default=None,
-        help="FRAME:xlo,ylo,zlo:xhi,yhi,zhi box for a frame's origin (repeatable)",
-    )  # fmt: skip
+    _add_limits(p)
     p.add_argument("--starts", type=int, default=3, help="random starts")
     p.add_argument("--optimizer", choices=("lbfgs", "adam"), default="lbfgs", help="optimiser")
     p.add_argument(
@@ -123,6 +120,53 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+def _add_limits(p: argparse.ArgumentParser) -> None:
+    """The limits' and the safety checks' options of ``excite``."""
+    p.add_argument("--position-margin", type=float, default=0.05, help="fraction of each range")
+    p.add_argument(
+        "--velocity-limit",
+        type=_numbers,
+        default=None,
+        help="rad/s, one or per joint, used as given; when not given the description's less "
+        "--velocity-margin",
+    )
+    p.add_argument(
+        "--velocity-margin", type=float, default=DEFAULT_VELOCITY_MARGIN,
+        help="fraction of the description's velocity limits kept free",
+    )  # fmt: skip
+    p.add_argument(
+        "--acceleration-limit", type=_numbers, default=None,
+        help="rad/s^2, one or per joint; when not given the velocity limit (with its margin) "
+        f"reached from rest in {DEFAULT_ACCELERATION_TIME:g} s, e.g. 5.4 rad/s^2 for 3.15 rad/s "
+        "(robot descriptions carry no acceleration limit)",
+    )  # fmt: skip
+    p.add_argument("--torque-limit", type=_numbers, default=None, help="N m (nominal model)")
+    p.add_argument(
+        "--workspace", type=_box, action="append", default=None,
+        help="FRAME:xlo,ylo,zlo:xhi,yhi,zhi box for a frame's origin (repeatable)",
+    )  # fmt: skip
+    p.add_argument(
+        "--floor", type=float, default=0.0,
+        help="m: height, in the root frame, of the plane the robot is mounted on; no part of "
+        "the arm comes within --clearance of it (the base and what only turns on a vertical "
+        "first axis are not checked)",
+    )  # fmt: skip
+    p.add_argument("--no-floor", action="store_true", help="no mounting plane")
+    p.add_argument(
+        "--clearance", type=float, default=DEFAULT_CLEARANCE,
+        help="m kept to the floor and between links that are not adjacent",
+    )  # fmt: skip
+    p.add_argument(
+        "--capsule-radius", type=float, default=DEFAULT_CAPSULE_RADIUS,
+        help="m: radius of the capsules along links without collision geometry in the "
+        "description (links with some get the radius that holds it)",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-self-collision", action="store_true",
+        help="do not keep the links apart (only the floor, if any)",
+    )  # fmt: skip
 
 
 def _limit_arg(values, n: int, name: str):
@@ -160,10 +204,15 @@ def run(args, model) -> int:
     limits = limits_from_model(
         model,
         position_margin=args.position_margin,
+        velocity_margin=args.velocity_margin,
         velocity=_limit_arg(args.velocity_limit, n, "velocity-limit"),
         acceleration=_limit_arg(args.acceleration_limit, n, "acceleration-limit"),
         torque=_limit_arg(args.torque_limit, n, "torque-limit"),
         workspace=args.workspace or (),
+        floor=None if args.no_floor else args.floor,
+        self_collision=not args.no_self_collision,
+        clearance=args.clearance,
+        capsule_radius=args.capsule_radius,
     )
     res, rnd, rnd_margins, info = _design(args, model, limits, rate, posture)
     out = Path(args.out)
@@ -187,10 +236,12 @@ def run(args, model) -> int:
 
 def _design(args, model, limits, rate: float, posture):
     """``(res, rnd, rnd_margins, info)``: the optimised excitation (`optimize_excitation`'s
-    result), a random one of the same band for comparison, the random one's margins to the
-    limits, and both trajectories' information (`trajectory_information`, name -> dict)."""
+    result), a random one of the same band about the same posture for comparison, the random
+    one's margins to the limits (``{"fraction": check_limits's, "physical":
+    physical_margins'}``), and both trajectories' information (`trajectory_information`,
+    name -> dict)."""
+    from ._check import check_limits, physical_margins, trajectory_geometry
     from ._design import optimize_excitation, random_excitation, trajectory_information
-    from ._limits import check_limits
 
     res = optimize_excitation(
         model,
@@ -212,9 +263,14 @@ def _design(args, model, limits, rate: float, posture):
     )
     rnd = random_excitation(
         model, limits, base_frequency=args.base_freq, harmonics=args.harmonics, rate=rate,
-        seed=args.seed,
+        seed=args.seed, posture=res.trajectory.posture,
     )  # fmt: skip
-    rnd_margins = check_limits(model, rnd, limits, rate=rate, raise_error=False)
+    geometry = trajectory_geometry(model, rnd, limits)
+    rnd_margins = {
+        "fraction": check_limits(model, rnd, limits, rate=rate, raise_error=False,
+                                 geometry=geometry),
+        "physical": physical_margins(model, rnd, limits, rate=rate, geometry=geometry),
+    }  # fmt: skip
     n_info = max(args.grid, 1000)
     info = {
         "optimised": trajectory_information(model, res.trajectory, res.basis, n_grid=n_info),
@@ -260,7 +316,14 @@ def _summary(args, model, res, rnd_margins, info, rate: float) -> dict:
         "optimisation_seconds": res.seconds,
         "start_values": res.start_values,
         "shrink": res.shrink,
-        "margins": {"optimised": res.margins, "random": rnd_margins},
+        "margins": {"optimised": res.margins, "random": rnd_margins["fraction"]},
+        "physical_margins": {
+            "optimised": res.physical_margins,
+            "random": rnd_margins["physical"],
+        },  # fmt: skip
+        "geometry": res.geometry,
+        "posture": res.trajectory.posture.tolist(),
+        "posture_moved": res.posture_moved,
         "optimised": {k: v for k, v in info["optimised"].items() if k != "singular_values"},
         "random": {k: v for k, v in info["random"].items() if k != "singular_values"},
     }
@@ -287,20 +350,45 @@ def _markdown(s: dict, limits) -> str:
     ]
     for k, label in (("d", "-log det M / r"), ("condition", "log cond"), ("e", "-log lambda_min")):
         lines.append(f"| {label} (`{k}`) | {o[k]:.4g} | {r[k]:.4g} | |")
-    lines += ["", "Smallest margin to each limit (fraction of the limit; position: of the range "
-              "left after the margin):", "", "| limit | optimised | random |", "| --- | ---: | ---: |"]  # fmt: skip
-    for k in s["margins"]["optimised"]:
-        lines.append(
-            f"| {k} | {s['margins']['optimised'][k]:.3g} | {s['margins']['random'].get(k, math.nan):.3g} |"
-        )
-    lines += ["", "Limits (position with the margin):", "", "| joint | low | high | velocity | "
-              "acceleration | torque |", "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+    lines += _margin_lines(s, limits)
+    return "\n".join(lines) + "\n"
+
+
+def _margin_lines(s: dict, limits) -> list[str]:
+    """The report's margins: per limit in physical units, per joint the peaks, the geometry."""
+    phys, rnd = s["physical_margins"]["optimised"], s["physical_margins"]["random"]
+    lines = ["", f"Smallest margin to each limit on the {10 * s['rate_hz']:g} Hz grid (position: "
+             "to the limits with their margin; floor and collision: beyond the distance "
+             "required there):", "", "| limit | margin | where | t [s] | random |",
+             "| --- | ---: | --- | ---: | ---: |"]  # fmt: skip
+    for kind in s["margins"]["optimised"]:
+        e, r = phys.get(kind, {}), rnd.get(kind, {})
+        margin = f"{e.get('margin', math.nan):.3g} {e.get('unit', '')}"
+        if "required" in e:
+            apart = (">= " if e.get("at_least") else "") + f"{e['distance']:.3g} m"
+            margin += f" (apart {apart}, {e['required']:.3g} m required)"
+        lines.append(f"| {kind} | {margin} | {e.get('where', '')} | {e.get('t', math.nan):.3f} | "
+                     f"{r.get('margin', math.nan):.3g} {r.get('unit', '')} |")  # fmt: skip
+    lines += ["", "Limits (position with the margin) and the optimised motion's peaks:", "",
+              "| joint | low | high | peak / limit velocity | peak / limit acceleration | "
+              "peak / limit torque |", "| --- | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for j, name in enumerate(limits.joint_names):
+        pk = phys["joints"][name]
+        torque = f"{pk['torque']:.4g} / " if "torque" in pk else ""
         lines.append(
             f"| {name} | {limits.position_low[j]:.4g} | {limits.position_high[j]:.4g} | "
-            f"{limits.velocity[j]:.4g} | {limits.acceleration[j]:.4g} | {limits.torque[j]:.4g} |"
+            f"{pk['velocity']:.4g} / {limits.velocity[j]:.4g} | {pk['acceleration']:.4g} / "
+            f"{limits.acceleration[j]:.4g} | {torque}{limits.torque[j]:.4g} |"
         )
-    return "\n".join(lines) + "\n"
+    units = "units: rad, rad/s, rad/s^2, N m (prismatic joints: m, m/s, m/s^2, N)"
+    lines += ["", units]
+    if s["geometry"]:
+        moved = (
+            " (the middle of the limits, moved clear of the floor)" if s["posture_moved"] else ""
+        )
+        lines += ["", f"Posture{moved}: {', '.join(f'{v:.4g}' for v in s['posture'])}", ""]
+        lines += [f"- {line}" for line in s["geometry"]]
+    return lines
 
 
 def _plots(out, model, limits, traj, rnd, info, rate, duration) -> None:
@@ -347,33 +435,3 @@ def _plots(out, model, limits, traj, rnd, info, rate, duration) -> None:
     fig.tight_layout()
     fig.savefig(out / "singular_values.png", dpi=110)
     plt.close(fig)
-
-
-def simulation_reference(path, robot: str):
-    """The trajectory written by ``torchjfa excite`` as `generate_log`'s reference for ``robot``.
-
-    Args:
-        path: ``trajectory.npz`` from ``torchjfa excite`` (or `FourierTrajectory.save`).
-        robot: a simulated robot (``"head"``, ``"arm"``); the joints are matched by name.
-
-    Returns:
-        A `torchjfa.sim.SinusoidTrajectory` in the simulator's joint order.
-
-    Raises:
-        ValueError: if the file is not a trajectory or its joints are not the robot's.
-    """
-    from .._joints import permutation
-    from ..sim import load_robot
-    from ..sim._robots import joint_names
-    from ._fourier import FourierTrajectory
-
-    if not Path(path).is_file():
-        raise ValueError(f"no trajectory file {str(path)!r}")
-    traj = FourierTrajectory.load(path)
-    names = joint_names(load_robot(robot))
-    perm = permutation(
-        traj.joint_names, names, have_name="the trajectory", want_name=f"the simulated {robot}"
-    )
-    return FourierTrajectory(
-        traj.base_frequency, traj.posture[perm], traj.a[perm], traj.b[perm], names
-    ).to_sinusoid()

@@ -23,14 +23,18 @@ et al. 1997; Gautier and Khalil 1992):
 
 `optimize_excitation` minimises the criterion over the coefficients of a `FourierTrajectory`
 on a coarse grid of one period with torch autograd (LBFGS or Adam, several random starts)
-while a quadratic penalty, raised over rounds, keeps the limits (`Limits`) with a small
-safety margin (in the polish, each limit's target is moved after every round by what the
+while a quadratic penalty, raised over rounds, keeps the limits (`Limits`: joints, torques,
+workspace boxes, and the mounting plane and self-collision through capsules along the links,
+`torchjfa.excitation._geometry`) with a small safety margin (in the polish, each limit's target is moved after every round by what the
 round's optimum exceeded it by: `_Design.update_shift`). The condition number, a nonsmooth
 ratio of extreme eigenvalues (LBFGS stalls on it where they cluster), is optimised through
 its smooth bound `soft_condition` with the exponent p raised over rounds (``condition_p``;
 ``inf`` is the exact log condition number). The result is then checked on a grid 10x finer
-than the output rate and shrunk about the posture until it holds there (`check_limits`), or
-a ``ValueError`` says which limit cannot be met.
+than the output rate and shrunk about the posture until it holds there (`check_limits`; the
+floor and self-collision on the description's collision geometry through MuJoCo where it has
+some, after cuts where that geometry came closer than the capsules allowed:
+`torchjfa.excitation._problem.repair_geometry`), or a ``ValueError`` says which limit cannot
+be met.
 """
 
 from __future__ import annotations
@@ -46,13 +50,21 @@ import torch
 from .._progress import progress_bar
 from ..dynamics import RigidBodyModel
 from ..sim import SinusoidTrajectory, random_trajectory
+from ._check import check_limits, physical_margins
 from ._fourier import FourierTrajectory, constrain_coefficients
+from ._geometry import Geometry, start_geometry
 from ._information import CRITERIA, base_directions, period_grid, trajectory_information
 from ._limits import JOINT_KINDS as JOINT_KINDS
-from ._limits import Limits, _Kinematics, check_limits
+from ._limits import Limits, _Kinematics
 from ._problem import _EDGE as _EDGE
 from ._problem import _SAFETY as _SAFETY
-from ._problem import _condition_key, _Design, _optimise_round, _worst_violation
+from ._problem import (
+    _condition_key,
+    _Design,
+    _optimise_round,
+    _worst_violation,
+    repair_geometry,
+)
 from ._problem import _penalty as _penalty
 
 __all__ = ["ExcitationResult", "optimize_excitation", "random_excitation"]
@@ -73,6 +85,12 @@ class ExcitationResult:
         start_values: the criterion each random start reached.
         shrink: the factor the best start was shrunk by to hold the limits on the fine grid.
         seconds: wall time of the optimisation.
+        physical_margins: what is left of each limit on the fine grid in physical units
+            (`torchjfa.excitation._check.physical_margins`).
+        geometry: lines on the floor and self-collision checks (what was used, what was
+            left out), empty when neither is checked.
+        posture_moved: the default posture (the middle of the limits) was moved to clear the
+            floor.
     """
 
     trajectory: FourierTrajectory
@@ -85,9 +103,14 @@ class ExcitationResult:
     start_values: list = field(default_factory=list)
     shrink: float = 1.0
     seconds: float = 0.0
+    physical_margins: dict = field(default_factory=dict)
+    geometry: list = field(default_factory=list)
+    posture_moved: bool = False
 
 
-def _largest_feasible_scale(model, scaled, limits, rate, *, high: float = 1.0, theta=None):
+def _largest_feasible_scale(
+    model, scaled, limits, rate, *, high: float = 1.0, theta=None, geometry=None
+):
     """The largest s in (0, high] for which ``scaled(s)`` holds the limits on the fine grid.
 
     Bisection (10 steps) on the output-rate grid, then the fine grid (10x the rate), backing
@@ -96,7 +119,7 @@ def _largest_feasible_scale(model, scaled, limits, rate, *, high: float = 1.0, t
 
     def feasible(s, refine):
         m = check_limits(model, scaled(s), limits, rate=rate, refine=refine, theta=theta,
-                         raise_error=False)  # fmt: skip
+                         raise_error=False, geometry=geometry)  # fmt: skip
         return min(m.values()) >= 0.0
 
     s = high
@@ -145,7 +168,8 @@ def optimize_excitation(
         base_frequency: f0, Hz.
         harmonics: H >= 2 harmonics per joint (the highest frequency is ``H f0``).
         posture: ``(n_dof,)`` q0 the trajectory starts and ends at, at rest (default: the middle
-            of the position limits).
+            of the position limits, moved to the nearest posture that clears the floor when
+            it does not: `torchjfa.excitation._geometry.safe_posture`).
         criterion: ``"d+condition"`` (default), ``"d"``, ``"condition"`` or ``"e"`` (see the
             module).
         joint_weights: ``(n_dof,)`` weights of each joint's torque equation (e.g. 1 / torque
@@ -174,8 +198,8 @@ def optimize_excitation(
         An `ExcitationResult`.
 
     Raises:
-        ValueError: on bad arguments, a posture outside the limits, or limits the trajectory
-            cannot meet on the fine grid even shrunk to rest.
+        ValueError: on bad arguments, a posture outside the limits or too close to the floor,
+            or limits the trajectory cannot meet on the fine grid even shrunk to rest.
     """
     t0 = time.perf_counter()
     f0 = _check_design(
@@ -196,6 +220,9 @@ def optimize_excitation(
     )
     condition_p = _check_exponents(condition_p, criterion)
     q0 = _posture(limits, posture, model.n_dof)
+    geometry, moved = None, False
+    if limits.has_geometry:
+        q0, geometry, moved = start_geometry(model, limits, q0, movable=posture is None)
     g = generator if generator is not None else torch.Generator()
     if generator is None and seed is not None:
         g.manual_seed(int(seed))
@@ -206,6 +233,7 @@ def optimize_excitation(
     problem = _Design(
         model, limits, basis, criterion, joint_weights, kin, period_grid(1.0 / f0, n_grid), q0, f0
     )
+    problem.geometry = geometry
     # "d+condition": D-optimal starts, the best one polished at every exponent; "condition":
     # every start on soft_condition (its penalty rounds at the first exponent, then the others),
     # so its start_values are the bound at the last exponent
@@ -227,15 +255,12 @@ def optimize_excitation(
     with progress_bar(total=total, desc="excitation", enabled=progress, unit="round") as bar:
         starts, values = _run_starts(problem, plan, n_starts, harmonics, g, room, bar)
         a_raw, b_raw = _polish(problem, plan, starts[:n_polish], starts[0], room, bar)
+        a_raw, b_raw = a_raw.clone().requires_grad_(True), b_raw.clone().requires_grad_(True)
+        repair_geometry(problem, a_raw, b_raw, plan.rounds[-1], optimizer, max_iter, room)
         with torch.no_grad():
             a, b = constrain_coefficients(a_raw, b_raw)
     traj = FourierTrajectory(f0, q0, a.numpy(), b.numpy(), model.joint_names)
-    theta = problem.theta
-    shrink = _largest_feasible_scale(model, traj.scaled, limits, rate, theta=theta)
-    if shrink < 1.0:
-        traj = traj.scaled(shrink)
-    # the hard check: raises with every violated limit if even the shrunk trajectory fails
-    margins = check_limits(model, traj, limits, rate=rate, theta=theta)
+    traj, shrink, margins, physical = _checked(model, traj, limits, rate, problem.theta, geometry)
     info = trajectory_information(model, traj, basis, n_grid=n_grid, joint_weights=joint_weights)
     return ExcitationResult(
         trajectory=traj,
@@ -248,7 +273,24 @@ def optimize_excitation(
         start_values=values,
         shrink=shrink,
         seconds=time.perf_counter() - t0,
+        physical_margins=physical,
+        geometry=geometry.describe() if geometry is not None else [],
+        posture_moved=moved,
     )
+
+
+def _checked(model, traj, limits, rate, theta, geometry):
+    """``(trajectory, shrink, margins, physical margins)``: ``traj`` shrunk about its posture
+    until it holds every limit on the fine grid, then checked there (`check_limits`: raises
+    with every violated limit if even the shrunk trajectory fails)."""
+    shrink = _largest_feasible_scale(
+        model, traj.scaled, limits, rate, theta=theta, geometry=geometry
+    )
+    if shrink < 1.0:
+        traj = traj.scaled(shrink)
+    kw = {"rate": rate, "theta": theta, "geometry": geometry}
+    margins = check_limits(model, traj, limits, **kw)
+    return traj, shrink, margins, physical_margins(model, traj, limits, **kw)
 
 
 @dataclass(frozen=True)
@@ -294,6 +336,7 @@ def _run_starts(problem: _Design, plan: _Plan, n_starts: int, harmonics: int, g,
     starts, values = [], []
     for _ in range(n_starts):
         a_raw, b_raw = _random_start(g, problem.model.n_dof, harmonics, w, room)
+        problem.scale_into_geometry(a_raw, b_raw)
         crit = math.inf
         steps = [(rho, problem.p) for rho in plan.rounds]
         for rho, p in steps + [(plan.rounds[-1], p) for p in plan.per_start]:
@@ -414,20 +457,35 @@ def random_excitation(
     harmonics: int = 5,
     rate: float = 100.0,
     seed: int | None = 0,
+    posture=None,
+    geometry=None,
 ) -> SinusoidTrajectory:
     """The library's random sum of sinusoids (`torchjfa.sim.random_trajectory`) in the limits.
 
     The baseline an optimised excitation is compared with: ``min(3, H)`` random harmonics of
-    ``base_frequency`` up to ``H``, centred in the position limits, its amplitudes then scaled
-    by the largest factor that keeps every limit on the fine grid (10x ``rate``): at most the
-    factor at which one joint's motion spans its whole position range.
+    ``base_frequency`` up to ``H``, centred at ``posture`` (default: the middle of the
+    position limits), its amplitudes then scaled by the largest factor that keeps every limit
+    on the fine grid (10x ``rate``): at most the factor at which one joint's motion spans the
+    room the posture leaves it.
+
+    Args:
+        posture: ``(n_dof,)`` the centre, e.g. an optimised excitation's posture (which
+            clears the floor).
+        geometry: the floor and self-collision constraints at ``posture``
+            (`torchjfa.excitation._check.trajectory_geometry`; built when needed).
 
     Returns:
         A `torchjfa.sim.SinusoidTrajectory` in the model's joint order.
     """
+    lo, hi = limits.position_low, limits.position_high
+    centre = _posture(limits, posture, limits.n_dof)
+    room = np.minimum(centre - lo, hi - centre)
+    lo, hi = centre - room, centre + room
+    if geometry is None and limits.has_geometry:
+        geometry = Geometry(model, limits, centre)
     # random_trajectory reads only the joint ranges of the MuJoCo model it is given
     ranges = SimpleNamespace(
-        jnt_range=np.stack([limits.position_low, limits.position_high], 1),
+        jnt_range=np.stack([lo, hi], 1),
         jnt_limited=np.ones(limits.n_dof, dtype=bool),
     )
     traj = random_trajectory(
@@ -446,6 +504,7 @@ def random_excitation(
 
     t = torch.arange(int(math.ceil(traj.period * rate * 10)), dtype=torch.float64) / (10 * rate)
     q = traj(t)[0].numpy()
-    half = 0.5 * (limits.position_high - limits.position_low)
+    half = 0.5 * (hi - lo)
     high = float(np.min(half / np.abs(q - traj.offset).max(0)))
-    return scaled(_largest_feasible_scale(model, scaled, limits, rate, high=high))
+    return scaled(_largest_feasible_scale(model, scaled, limits, rate, high=high,
+                                          geometry=geometry))  # fmt: skip

@@ -1,14 +1,27 @@
-"""The limits an excitation trajectory must respect, and their check on a dense time grid.
+"""The limits an excitation trajectory must respect.
 
 `limits_from_model` reads position, velocity and effort limits from the robot description
 (URDF ``<limit lower upper velocity effort>``, MJCF joint ``range``; an absent limit is
-infinite, a joint without a position range gets ``(-pi, pi)``), shrinks the position range by
-a margin and lets the user override every limit (joint limits are read through the
-pytorch-kinematics chain, `RigidBodyModel.chain`; frame positions for workspace boxes come from
-`RigidBodyModel.forward_kinematics`). `constraint_violations` gives, per sample,
-how far each limit is exceeded (normalised, > 0 means violated: the optimiser's penalty), and
-`check_limits` evaluates a trajectory on a grid finer than its output rate and raises a
-``ValueError`` listing every violated limit.
+infinite, a joint without a position range gets ``(-pi, pi)``; joint limits are read through
+the pytorch-kinematics chain, `RigidBodyModel.chain`), keeps a margin inside them and lets the
+user override every limit. By default the excitation is safe to run:
+
+* position: 5 % of each joint's range kept free at both ends (``position_margin``);
+* velocity: 15 % of the description's velocity limit kept free (``velocity_margin``);
+* acceleration: no description format has one, so the default is the velocity limit (with its
+  margin) reached from rest in `DEFAULT_ACCELERATION_TIME` (0.5 s): 5.4 rad/s^2 for the UR5's
+  3.15 rad/s, 3.7 rad/s^2 for the Franka Panda's 2.175 rad/s (Franka's published limits are
+  7.5-20 rad/s^2). Joints without a velocity limit get none (give ``acceleration``);
+* the mounting plane: no part of the arm below ``z = floor`` (0: the base's plane) of the root
+  frame, with a clearance (`torchjfa.excitation._geometry`);
+* self-collision: non-adjacent links apart by the clearance (capsules along the links in the
+  optimisation; the description's collision geometry, through MuJoCo, in the final check where
+  it has some).
+
+Frame positions for workspace boxes come from `RigidBodyModel.forward_kinematics`.
+`constraint_violations` gives, per sample, how far each limit is exceeded (normalised, > 0
+means violated: the optimiser's penalty); `torchjfa.excitation._check` checks a trajectory on a
+dense grid.
 """
 
 from __future__ import annotations
@@ -21,13 +34,27 @@ import numpy as np
 import torch
 
 from ..dynamics import RigidBodyModel
+from ._geometry import DEFAULT_CAPSULE_RADIUS, DEFAULT_CLEARANCE
 
-__all__ = ["Limits", "WorkspaceBox", "limits_from_model", "constraint_violations", "check_limits"]
+__all__ = [
+    "DEFAULT_ACCELERATION_TIME",
+    "DEFAULT_VELOCITY_MARGIN",
+    "Limits",
+    "WorkspaceBox",
+    "constraint_violations",
+    "limits_from_model",
+]
 
 #: the kinds of limit, as `constraint_violations` names them
-KINDS = ("position", "velocity", "acceleration", "torque", "workspace")
+KINDS = ("position", "velocity", "acceleration", "torque", "workspace", "floor", "collision")
 #: those that the joint states alone decide (no regressor, no kinematics)
 JOINT_KINDS = KINDS[:3]
+#: those of the arm's geometry (`torchjfa.excitation._geometry`), in metres
+GEOMETRY_KINDS = KINDS[5:]
+#: fraction of the description's velocity limits kept free by default
+DEFAULT_VELOCITY_MARGIN = 0.15
+#: s: the default acceleration limit takes a joint from rest to its velocity limit in this time
+DEFAULT_ACCELERATION_TIME = 0.5
 
 
 @dataclass(frozen=True)
@@ -70,6 +97,11 @@ class Limits:
         acceleration: ``(n_dof,)`` |qdd| limits, rad/s^2 (inf: none).
         torque: ``(n_dof,)`` |tau| limits of the nominal model's inverse dynamics, N m (inf: none).
         workspace: boxes that frames' origins must stay in.
+        floor: height of the mounting plane in the root frame, m, that no part of the arm may
+            go below (None: none).
+        self_collision: keep non-adjacent links apart.
+        clearance: m, kept to the floor and between links.
+        capsule_radius: m, of the capsules along the links.
     """
 
     joint_names: tuple[str, ...]
@@ -79,6 +111,10 @@ class Limits:
     acceleration: np.ndarray
     torque: np.ndarray
     workspace: tuple[WorkspaceBox, ...] = field(default=())
+    floor: float | None = None
+    self_collision: bool = False
+    clearance: float = DEFAULT_CLEARANCE
+    capsule_radius: float = DEFAULT_CAPSULE_RADIUS
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -95,6 +131,18 @@ class Limits:
         if bad:
             raise ValueError(f"empty position range (low >= high) for joints {bad}")
         object.__setattr__(self, "workspace", tuple(self.workspace))
+        if self.floor is not None and not math.isfinite(float(self.floor)):
+            raise ValueError(f"Limits.floor must be a finite height in m, got {self.floor}")
+        for name in ("clearance", "capsule_radius"):
+            v = float(getattr(self, name))
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"Limits.{name} must be a length >= 0 m, got {v}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def has_geometry(self) -> bool:
+        """Are the floor or self-collision checked (`torchjfa.excitation._geometry`)?"""
+        return self.floor is not None or self.self_collision
 
     @property
     def n_dof(self) -> int:
@@ -117,37 +165,8 @@ def _per_joint(value, n: int, name: str, names) -> np.ndarray | None:
     return arr
 
 
-def limits_from_model(
-    model: RigidBodyModel,
-    *,
-    position_margin: float = 0.05,
-    position=None,
-    velocity=None,
-    acceleration=None,
-    torque=None,
-    workspace: Sequence[WorkspaceBox] = (),
-) -> Limits:
-    """The description's limits, overridden where the user gives them.
-
-    Args:
-        model: the robot.
-        position_margin: fraction of each joint's range kept free at both ends, in [0, 0.5).
-        position: ``(n_dof, 2)`` ranges replacing the description's (before the margin).
-        velocity, acceleration, torque: a number (every joint), ``n_dof`` numbers or a mapping
-            joint -> number (NaN or a missing joint keeps the description's value); inf for none.
-        workspace: `WorkspaceBox` es.
-
-    Returns:
-        `Limits` in the model's joint order.
-
-    Raises:
-        ValueError: on a bad margin, bad shapes, unknown joints or empty ranges.
-    """
-    if not isinstance(model, RigidBodyModel):
-        raise TypeError(f"model must be a RigidBodyModel, got {type(model)}")
-    margin = float(position_margin)
-    if not 0.0 <= margin < 0.5:
-        raise ValueError(f"position_margin must lie in [0, 0.5), got {position_margin}")
+def _description_limits(model: RigidBodyModel):
+    """``(low, high, velocity, effort)`` per joint from the description (inf where absent)."""
     names = model.joint_names
     n = len(names)
     joints = {j.name: j for j in model.chain.get_joints()}
@@ -163,6 +182,68 @@ def limits_from_model(
             vel[i] = float(j.velocity_limits[1])
         if j.effort_limits is not None and float(j.effort_limits[1]) > 0:
             eff[i] = float(j.effort_limits[1])
+    return lo, hi, vel, eff
+
+
+def _fraction(value, name: str, high: float = 1.0) -> float:
+    v = float(value)
+    if not 0.0 <= v < high:
+        raise ValueError(f"{name} must lie in [0, {high:g}), got {value}")
+    return v
+
+
+def limits_from_model(
+    model: RigidBodyModel,
+    *,
+    position_margin: float = 0.05,
+    velocity_margin: float = DEFAULT_VELOCITY_MARGIN,
+    position=None,
+    velocity=None,
+    acceleration=None,
+    torque=None,
+    workspace: Sequence[WorkspaceBox] = (),
+    floor: float | None = 0.0,
+    self_collision: bool = True,
+    clearance: float = DEFAULT_CLEARANCE,
+    capsule_radius: float = DEFAULT_CAPSULE_RADIUS,
+) -> Limits:
+    """The description's limits with safety margins, overridden where the user gives them.
+
+    Args:
+        model: the robot.
+        position_margin: fraction of each joint's range kept free at both ends, in [0, 0.5).
+        velocity_margin: fraction of the description's velocity limits kept free, in [0, 1)
+            (a velocity the user gives is used as it is).
+        position: ``(n_dof, 2)`` ranges replacing the description's (before the margin).
+        velocity, acceleration, torque: rad/s, rad/s^2, N m (m/s, m/s^2, N for prismatic
+            joints): a number (every joint), ``n_dof`` numbers or a mapping joint -> number
+            (NaN or a missing joint keeps the default); inf for none. Defaults: the
+            description's velocity less ``velocity_margin``; that velocity reached from rest
+            in `DEFAULT_ACCELERATION_TIME` (none where there is no velocity limit); the
+            description's effort.
+        workspace: `WorkspaceBox` es.
+        floor: height in the root frame, m, of the plane the arm is mounted on (0: the base's
+            plane, z = 0); no part of the arm may come within ``clearance`` of it. None: none.
+        self_collision: keep links that are not adjacent ``clearance`` apart.
+        clearance: m, kept to the floor and between links (beyond the capsules' radius, or
+            the collision geometry's surfaces).
+        capsule_radius: m, the radius of the capsules along the links
+            (`torchjfa.excitation._geometry`).
+
+    Returns:
+        `Limits` in the model's joint order.
+
+    Raises:
+        ValueError: on bad margins or lengths, bad shapes, unknown joints or empty ranges.
+    """
+    if not isinstance(model, RigidBodyModel):
+        raise TypeError(f"model must be a RigidBodyModel, got {type(model)}")
+    margin = _fraction(position_margin, "position_margin", 0.5)
+    v_margin = _fraction(velocity_margin, "velocity_margin")
+    names = model.joint_names
+    n = len(names)
+    lo, hi, vel, eff = _description_limits(model)
+    vel = vel * (1.0 - v_margin)
     if position is not None:
         pos = np.asarray(position, dtype=np.float64)
         if pos.shape != (n, 2):
@@ -170,13 +251,15 @@ def limits_from_model(
                 f"position must have shape ({n}, 2) (low, high per joint), got {pos.shape}"
             )
         lo, hi = pos[:, 0].copy(), pos[:, 1].copy()
-    acc = np.full(n, math.inf)
-    for arr, user, label in ((vel, velocity, "velocity"), (acc, acceleration, "acceleration"),
-                             (eff, torque, "torque")):  # fmt: skip
+    for arr, user, label in ((vel, velocity, "velocity"), (eff, torque, "torque")):
         given = _per_joint(user, n, label, names)
         if given is not None:
             keep = ~np.isnan(given)
             arr[keep] = given[keep]
+    acc = vel / DEFAULT_ACCELERATION_TIME
+    given = _per_joint(acceleration, n, "acceleration", names)
+    if given is not None:
+        acc[~np.isnan(given)] = given[~np.isnan(given)]
     bad = [names[i] for i in range(n) if not lo[i] < hi[i]]
     if bad:
         raise ValueError(f"empty position range (low >= high) for joints {bad}")
@@ -195,6 +278,10 @@ def limits_from_model(
         acceleration=acc,
         torque=eff,
         workspace=tuple(workspace),
+        floor=None if floor is None else float(floor),
+        self_collision=bool(self_collision),
+        clearance=clearance,
+        capsule_radius=capsule_radius,
     )
 
 
@@ -219,6 +306,8 @@ def constraint_violations(
     theta: torch.Tensor | None = None,
     tau: torch.Tensor | None = None,
     kinematics: _Kinematics | None = None,
+    geometry=None,
+    exact: bool = False,
     kinds: Collection[str] = KINDS,
 ) -> dict[str, torch.Tensor]:
     """Normalised excess over each limit at each sample (> 0: violated); differentiable.
@@ -231,13 +320,18 @@ def constraint_violations(
         tau: ``(n, n_dof)`` the nominal torques, N m, when already computed (else
             ``Y(q, qd, qdd) theta``).
         kinematics: forward kinematics for the workspace boxes (built when needed).
+        geometry: the floor and self-collision constraints
+            (`torchjfa.excitation._geometry.Geometry`); without it they are not evaluated.
+        exact: the geometry's dense-grid check (`Geometry.check`: the description's collision
+            geometry where it has some) instead of its differentiable capsules.
         kinds: the kinds of limit to evaluate (default all of `KINDS`; ``("position",
             "velocity", "acceleration")`` needs neither the regressor nor the kinematics).
 
     Returns:
-        ``{"position", "velocity", "acceleration", "torque", "workspace"}`` (only the limits in
-        use, and among ``kinds``) -> ``(n, m)`` tensors: the excess divided by the limit
-        (position: by the range; workspace: by the box's size).
+        ``{"position", "velocity", "acceleration", "torque", "workspace", "floor",
+        "collision"}`` (only the limits in use, and among ``kinds``) -> ``(n, m)`` tensors: the
+        excess divided by the limit (position: by the range; workspace: by the box's size);
+        floor and collision: the required distance less the actual one, m.
     """
     unknown = set(kinds) - set(KINDS)
     if unknown:
@@ -271,80 +365,7 @@ def constraint_violations(
         size = bhi - blo
         # columns: every box's excess above its high corner (x, y, z), then below its low one
         out["workspace"] = torch.cat([(p - bhi) / size, (blo - p) / size], 1).flatten(1)
+    if geometry is not None and any(k in kinds for k in GEOMETRY_KINDS):
+        geo = geometry.check(q) if exact else geometry.violations(q)
+        out.update({k: v for k, v in geo.items() if k in kinds})
     return out
-
-
-def check_limits(
-    model: RigidBodyModel,
-    trajectory,
-    limits: Limits,
-    *,
-    rate: float,
-    refine: int = 10,
-    theta=None,
-    raise_error: bool = True,
-) -> dict[str, float]:
-    """Check a trajectory against the limits on a grid ``refine`` times finer than ``rate``.
-
-    One period is checked (the trajectory is periodic), at ``rate * refine`` Hz.
-
-    Args:
-        model, limits: the robot and its `Limits`.
-        trajectory: a `FourierTrajectory` or `torchjfa.sim.SinusoidTrajectory` in the model's
-            joint order.
-        rate: the output (sampling) rate, Hz.
-        refine: grid points per output sample.
-        theta: nominal parameters for the torques (default ``model.nominal_theta``).
-        raise_error: raise on a violation (else only return the margins).
-
-    Returns:
-        The smallest margin of each kind of limit in use, as a fraction of the limit (position:
-        of the range; 0 = at the limit, negative = violated).
-
-    Raises:
-        ValueError: listing every violated limit (joint, kind, worst value, the limit, when).
-    """
-    if trajectory.n_dof != limits.n_dof:
-        raise ValueError(f"the trajectory has {trajectory.n_dof} joints, the limits {limits.n_dof}")
-    step = 1.0 / (float(rate) * int(refine))
-    t = torch.arange(int(math.ceil(trajectory.period / step)) + 1, dtype=torch.float64) * step
-    q, qd, qdd = trajectory(t)
-    with torch.no_grad():
-        viol = constraint_violations(model, limits, q, qd, qdd, theta=theta)
-    margins = {k: float(-v.max()) for k, v in viol.items()}
-    if not raise_error:
-        return margins
-    lines = []
-    names = limits.joint_names
-    n = limits.n_dof
-    for kind, v in viol.items():
-        worst, at = v.max(0)
-        for col in torch.nonzero(worst > 1e-9).flatten().tolist():
-            when = float(t[at[col]])
-            if kind == "position":
-                j = col % n
-                side = "upper" if col < n else "lower"
-                bound = limits.position_high[j] if col < n else limits.position_low[j]
-                value = float(q[at[col], j])
-                lines.append(f"{names[j]}: position {value:.4g} beyond the {side} limit "
-                             f"{bound:.4g} (margin included) at t = {when:.3f} s")  # fmt: skip
-            elif kind == "workspace":
-                nb = len(limits.workspace)
-                box = limits.workspace[(col // 3) % nb]
-                side = "above" if col < 3 * nb else "below"
-                lines.append(f"{box.frame}: origin {side} its workspace box on axis "
-                             f"{'xyz'[col % 3]} at t = {when:.3f} s")  # fmt: skip
-            else:
-                lim = getattr(limits, kind)
-                joints = [j for j in range(n) if np.isfinite(lim[j])]
-                j = joints[col]
-                value = float(worst[col] + 1.0) * lim[j]
-                unit = {"velocity": "rad/s", "acceleration": "rad/s^2", "torque": "N m"}[kind]
-                lines.append(f"{names[j]}: |{kind}| {value:.4g} > limit {lim[j]:.4g} {unit} "
-                             f"at t = {when:.3f} s")  # fmt: skip
-    if lines:
-        raise ValueError(
-            f"the trajectory violates {len(lines)} limit(s) on a {1 / step:g} Hz grid:\n  "
-            + "\n  ".join(lines)
-        )
-    return margins

@@ -5,7 +5,9 @@ the joint states, the criterion of the information matrix (`torchjfa.excitation.
 plus ``rho`` times the limits' quadratic penalty (`_penalty`, aiming `_SAFETY` inside each limit
 and moved further in by the adaptive targets of `_Design.update_shift`) is the objective, and
 the joint limits are evaluated on a grid `_DENSE` times finer. `_optimise_round` runs LBFGS or
-Adam on it for one penalty round; `_condition_key` and `_worst_violation` rank candidates.
+Adam on it for one penalty round; `_condition_key` and `_worst_violation` rank candidates;
+`repair_geometry` adds cuts where the description's collision geometry came closer than the
+capsules (`torchjfa.excitation._geometry`) allowed, and optimises again.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import torch
 
 from ._fourier import constrain_coefficients, fourier_states
 from ._information import criterion_value, period_grid, soft_condition, weighted_information
-from ._limits import JOINT_KINDS, constraint_violations
+from ._limits import GEOMETRY_KINDS, JOINT_KINDS, constraint_violations
 
 #: the joint limits (position, velocity, acceleration: the Fourier series alone, no regressor)
 #: are penalised on a grid this many times denser than the criterion's
@@ -26,6 +28,13 @@ _DENSE = 10
 #: points can reach a few per cent; the joint limits on the dense grid, where it is ~100x less
 #: (a smooth signal exceeds its grid maximum by at most max|f''| dt^2 / 8)
 _SAFETY = {"torque": 0.02, "workspace": 0.02} | dict.fromkeys(JOINT_KINDS, 0.005)
+#: m: the floor and self-collision distances (metres) are penalised in units of this length,
+#: and aim `_SAFETY` of it (5 mm) beyond the clearance: on the coarse grid a point of the arm
+#: moving at 10 m/s^2 exceeds its grid extreme by ~3 mm (max|f''| dt^2 / 8, dt = 50 ms)
+_LENGTH = 0.01
+_SAFETY |= dict.fromkeys(GEOMETRY_KINDS, 0.5)
+#: rounds of `repair_geometry` at most
+_REPAIRS = 5
 #: each optimised candidate is scaled about the posture until the joint limits hold on the
 #: dense grid this far inside them (fraction of the limit; position: of the range), which
 #: covers what the signals do between its points (``max|f''| dt^2 / 8`` above the grid's
@@ -76,6 +85,8 @@ class _Design:
         self.t_dense = period_grid(1.0 / f0, _DENSE * len(t))
         self.posture = torch.as_tensor(q0, dtype=torch.float64)
         self.theta = model.nominal_theta
+        #: the floor and self-collision constraints (`torchjfa.excitation._geometry.Geometry`)
+        self.geometry = None
         self.p: float | None = None
         #: per kind of limit, ``(m,)`` how much further inside than ``_SAFETY`` the penalty aims
         self.shift: dict[str, torch.Tensor] = {}
@@ -87,14 +98,18 @@ class _Design:
     def evaluate(self, a_raw, b_raw):
         """``(M, violations)``: the weighted information matrix and the limits' violations
         (`constraint_violations`; torques from the same pass of the regressor as M, joint
-        limits on the dense grid)."""
+        limits on the dense grid, floor and self-collision of the capsules in units of
+        `_LENGTH`)."""
         a, b, (q, qd, qdd) = self.states(a_raw, b_raw)
         Y = self.model.regressor(q, qd, qdd)  # (n_grid, n, P): one pass for M and the torques
         M = weighted_information(Y, self.basis, self.joint_weights)
         viol = constraint_violations(
             self.model, self.limits, q, qd, qdd, tau=Y @ self.theta, kinematics=self.kin,
-            kinds=("torque", "workspace"),
+            geometry=self.geometry, kinds=("torque", "workspace", *GEOMETRY_KINDS),
         )  # fmt: skip
+        for k in GEOMETRY_KINDS:
+            if k in viol:
+                viol[k] = viol[k] / _LENGTH
         dense = fourier_states(self.t_dense, self.posture, a, b, self.f0)
         viol.update(constraint_violations(self.model, self.limits, *dense, kinds=JOINT_KINDS))
         return M, viol
@@ -131,6 +146,37 @@ class _Design:
             with torch.no_grad():
                 a_raw.mul_(s)
                 b_raw.mul_(s)
+
+    def scale_into_geometry(self, a_raw, b_raw, steps: int = 12) -> None:
+        """Scale the coefficients (in place) about the posture by the largest factor in
+        [0.001, 1] (bisection) at which the floor and self-collision hold on the coarse grid,
+        with the penalty's safety (or half the room the posture leaves, where that is less): a
+        random start that swings the arm through the floor starts inside instead."""
+        if self.geometry is None:
+            return
+
+        with torch.no_grad():
+            # per column, the target: the penalty's safety inside, or half the room the
+            # posture leaves where that is less (parts close by design)
+            at_rest = self.geometry.violations(self.posture[None])
+            aim = {k: torch.clamp(0.5 * v[0], min=-_SAFETY[k] * _LENGTH)
+                   for k, v in at_rest.items()}  # fmt: skip
+
+            def ok(s: float) -> bool:
+                a, b = constrain_coefficients(s * a_raw, s * b_raw)
+                q = fourier_states(self.t, self.posture, a, b, self.f0)[0]
+                v = self.geometry.violations(q)
+                return all(bool((x.amax(0) <= aim[k]).all()) for k, x in v.items())
+
+            if ok(1.0):
+                return
+            lo, hi = 0.0, 1.0
+            for _ in range(steps):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+            s = max(lo, 1e-3)  # never all at rest: the criterion needs motion
+            a_raw.mul_(s)
+            b_raw.mul_(s)
 
     def objective(self, a_raw, b_raw, rho):
         M, viol = self.evaluate(a_raw, b_raw)
@@ -184,3 +230,51 @@ def _optimise_round(problem: _Design, a_raw, b_raw, rho, optimizer, max_iter, ro
     with torch.no_grad():
         _, c = problem.objective(a_raw, b_raw, rho)
     return float(c)
+
+
+def repair_geometry(problem: _Design, a_raw, b_raw, rho, optimizer, max_iter, room) -> int:
+    """Where the collision geometry comes closer than it may, add a cut there and optimise
+    again (in place); returns the number of cuts added.
+
+    The capsules are the optimiser's stand-in for the description's collision geometry
+    (`torchjfa.excitation._meshes`): a pair of bodies can come closer than their capsules
+    suggest (a wrist turning its non-round shape towards the forearm). Up to `_REPAIRS` times,
+    the motion is checked with MuJoCo on the dense grid; for each pair of bodies closer than
+    required, the two closest points of its geometry at its worst sample, fixed to their
+    bodies, must keep the required distance (plus the penalty's safety) in the optimiser
+    (`Geometry.add_witness`; the surfaces are never farther apart than two of their points, so
+    the cut holds at the posture), and one more penalty round runs, then the joint-limit
+    scaling.
+    """
+    geo = problem.geometry
+    if geo is None or geo.meshes is None or "collision" not in geo.meshes.kinds:
+        return 0
+    root = problem.model.frame_names[0]
+    need = geo.meshes.required("collision")
+    added = 0
+    for _ in range(_REPAIRS):
+        with torch.no_grad():
+            a, b = constrain_coefficients(a_raw, b_raw)
+            q = fourier_states(problem.t_dense, problem.posture, a, b, problem.f0)[0]
+            worst, at = geo.meshes.violations(q)["collision"].max(0)
+        bad = torch.nonzero(worst > 0).flatten().tolist()
+        for c in bad:
+            w = geo.meshes.witness(q[at[c]].numpy(), c)
+            if w is not None:
+                fa, pa, fb, pb = w
+                geo.add_witness(fa or root, pa, fb or root, pb,
+                                need[c] + _SAFETY["collision"] * _LENGTH)  # fmt: skip
+                added += 1
+        if not bad:
+            break
+        old = problem.shift.get("collision")
+        if old is not None:  # the new cuts' targets start unmoved
+            problem.shift["collision"] = torch.cat([old, old.new_zeros(added - _extra(old, geo))])
+        _optimise_round(problem, a_raw, b_raw, rho, optimizer, max_iter, room)
+        problem.scale_into_joint_limits(a_raw, b_raw)
+    return added
+
+
+def _extra(shift: torch.Tensor, geo) -> int:
+    """How many of the cuts (`Geometry.add_witness`) ``shift`` already has targets for."""
+    return shift.numel() - len(geo.capsules.pairs)
