@@ -60,12 +60,14 @@ def _resolve(filename: str, base: Path | None) -> str | None:
 def _urdf_for_mujoco(text: str, path: str | None) -> tuple[str, list[str]]:
     """The URDF with visuals dropped, mesh paths made absolute (collisions whose mesh is not
     found dropped: their names returned) and MuJoCo's compiler told to keep the paths."""
-    root = ET.fromstring(text)
+    from ..dynamics._mjcf import strip_urdf_for_mujoco
+
+    root = strip_urdf_for_mujoco(
+        ET.fromstring(text), keep=("collision",), strippath="false", balanceinertia="true"
+    )
     base = Path(path).resolve() if path else None
     missing = []
     for link in root.findall("link"):
-        for vis in link.findall("visual"):
-            link.remove(vis)
         for col in link.findall("collision"):
             mesh = col.find("geometry/mesh")
             if mesh is None:
@@ -76,15 +78,6 @@ def _urdf_for_mujoco(text: str, path: str | None) -> tuple[str, list[str]]:
                 link.remove(col)
             else:
                 mesh.set("filename", found)
-    ext = root.find("mujoco")
-    if ext is None:
-        ext = ET.SubElement(root, "mujoco")
-    comp = ext.find("compiler")
-    if comp is None:
-        comp = ET.SubElement(ext, "compiler")
-    comp.set("strippath", "false")
-    comp.set("balanceinertia", "true")
-    comp.set("discardvisual", "true")
     return ET.tostring(root, encoding="unicode"), missing
 
 
