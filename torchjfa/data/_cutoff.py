@@ -88,6 +88,7 @@ class CutoffChoice:
     coulomb_scores: tuple[float, ...] = ()
 
 
+@single_thread()  # small matrices: threads only wait on a busy machine
 def _fit(Y: torch.Tensor, tau: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Least squares ``tau ~ Y theta`` with joint weights ``w``, from the moments (the normal
     equations of the column-scaled problem, solved by a pseudo-inverse: minimum norm along the

@@ -16,6 +16,7 @@ import math
 
 import torch
 
+from .._threads import single_thread
 from ..stats import Moments
 from ._cv import MomentEstimator, check_grid, check_positive_real
 
@@ -27,6 +28,7 @@ __all__ = ["OLS", "Ridge", "TLS", "min_norm_solve"]
 ROUNDOFF_COLUMN = 1.5e-8
 
 
+@single_thread()  # small matrices: threads only wait on a busy machine
 def min_norm_solve(
     sxx: torch.Tensor, sxy: torch.Tensor, *, rcond: float = 1e-12
 ) -> tuple[torch.Tensor, int]:

@@ -8,6 +8,7 @@ from dataclasses import replace
 import torch
 
 from .._result import IdentificationResult
+from .._threads import single_thread
 from ..physical import project
 from ._options import IdentificationError, Options
 from ._prior import check_description_prior, choose_prior_weight, pick_prior_weight, prior_options
@@ -18,6 +19,7 @@ __all__ = ["make_consistent"]
 _RESERVED = ("layout", "moments", "metric", "input_noise", "parametrization", "theta_hat")
 
 
+@single_thread()  # small matrices: threads only wait on a busy machine
 def make_consistent(
     result: IdentificationResult, options: Options | None = None
 ) -> IdentificationResult:
