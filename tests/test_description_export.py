@@ -114,3 +114,16 @@ def test_a_urdf_robot_is_written_as_mjcf_that_mujoco_simulates_as_identified(tmp
     fc = terms[:, model.friction.index("coulomb")]
     for j, dof in enumerate(dofs):
         assert mj.dof_frictionloss[dof] == float(fc[j])
+
+
+def test_the_public_write_functions_take_keywords(tmp_path):
+    from torchjfa.dynamics import write_mjcf, write_urdf
+
+    model = RigidBodyModel.from_urdf(TWO_LINK, friction=("viscous",))
+    write_urdf(model=model, theta=model.nominal_theta, path=tmp_path / "a.urdf")
+    write_mjcf(model=model, theta=model.nominal_theta, path=tmp_path / "a.xml")
+    back = RigidBodyModel.from_urdf(str(tmp_path / "a.urdf"), friction=("viscous",))
+    assert torch.allclose(back.nominal_theta, model.nominal_theta, rtol=1e-12, atol=1e-15)
+    assert mujoco.MjModel.from_xml_path(str(tmp_path / "a.xml")).njnt == model.n_dof
+    with pytest.raises(ValueError, match="theta must have shape"):
+        write_urdf(model=model, theta=model.nominal_theta[:3], path=tmp_path / "b.urdf")

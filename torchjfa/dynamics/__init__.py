@@ -19,3 +19,5 @@ from ._parameters import inertial_vector as inertial_vector
 from ._parameters import pseudo_inertia as pseudo_inertia
 from ._transmission import Transmission as Transmission
 from ._transmission import read_transmission as read_transmission
+from ._writeback import write_mjcf as write_mjcf
+from ._writeback import write_urdf as write_urdf

@@ -47,7 +47,18 @@ def _values(model, theta: torch.Tensor):
 
 
 def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
-    """Write ``model.source_xml`` with theta's inertials to ``path`` (URDF models only)."""
+    """Write ``model``'s URDF with theta's inertials and joint friction to ``path``.
+
+    Args:
+        model: a `RigidBodyModel` read from URDF.
+        theta: ``(n_params,)`` physically consistent parameters (`torchjfa.physical.project`).
+        path: the file to write.
+
+    Raises:
+        ValueError: for a model read from MJCF, a theta of the wrong shape, a body that is not
+            consistent or a negative friction term.
+    """
+    theta = model._check_theta(theta)
     if model.source_format != "urdf":
         raise ValueError(
             f"write_urdf needs a model read from URDF; this one is {model.source_format}"
@@ -198,7 +209,16 @@ def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     precision); bodies must be named and defined in the main file (not in an ``<include>``).
     A URDF model is first turned into MJCF by MuJoCo's URDF importer
     (`torchjfa.dynamics._mjcf.mjcf_from_urdf`: links as bodies, no geometry).
+
+    Args:
+        model: a `RigidBodyModel`; theta: ``(n_params,)`` physically consistent parameters;
+        path: the file to write.
+
+    Raises:
+        ValueError: on a theta of the wrong shape, a body that is not consistent, a negative
+            friction term, or a description MuJoCo cannot compile.
     """
+    theta = model._check_theta(theta)
     if model.source_format == "urdf":
         model, theta = _as_mjcf(model, theta)
     inertials = _values(model, theta)
