@@ -118,6 +118,7 @@ class ProjectionResult:
         return self.table()
 
 
+@single_thread()  # ~100 x 100 matrices: the answer then does not depend on the caller's threads
 def project(
     theta_hat,
     *,
@@ -446,6 +447,11 @@ def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose,
     return cls(layout, phi=phi), n_iter + k, n_eval + e, converged
 
 
+#: how much lower (in the normalised loss, O(1)) the second solve's answer must be to replace
+#: the first: above round-off, far below the certificate's 1e-6
+_LOWER = 1e-10
+
+
 def _rescaled_sdp(cls, layout, problem: Problem, parametrization: str, fitted, solve: dict):
     """The semidefinite program once more, its variables in the units of LBFGS's answer.
 
@@ -462,14 +468,16 @@ def _rescaled_sdp(cls, layout, problem: Problem, parametrization: str, fitted, s
         optimum, _, _ = solve_normalised(problem, layout, parametrization, reference=theta)
     except ValueError:
         return fitted, (0, 0, None)
-    if not float(problem.loss(optimum)) < float(problem.loss(theta)):
+    # lower by more than round-off (the loss is O(1)): otherwise the first answer stands, so
+    # that the directions the data leave free do not follow round-off from run to run
+    if not float(problem.loss(optimum)) < float(problem.loss(theta)) - _LOWER:
         return fitted, (0, 0, None)
     with single_thread():
         polished, k, e, converged = _solve(
             cls, layout, problem, **solve, verbose=False, start=cls.from_theta(optimum, layout)
         )
     with torch.no_grad():
-        better = float(problem.loss(polished())) < float(problem.loss(theta))
+        better = float(problem.loss(polished())) < float(problem.loss(theta)) - _LOWER
     return (polished, (k, e, converged)) if better else (fitted, (k, e, None))
 
 
