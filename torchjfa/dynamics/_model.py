@@ -529,11 +529,11 @@ class RigidBodyModel(FrameKinematics):
         """Write the description with theta's inertials (URDF models); see `_writeback`."""
         from ._writeback import write_urdf
 
-        write_urdf(self, self._check_theta(theta), path)
+        write_urdf(self, theta, path)
 
     def write_mjcf(self, theta, path: str | os.PathLike) -> None:
         """Write the description with theta's inertials as MJCF (a URDF model through MuJoCo's URDF
         importer); see `_writeback`."""
         from ._writeback import write_mjcf
 
-        write_mjcf(self, self._check_theta(theta), path)
+        write_mjcf(self, theta, path)

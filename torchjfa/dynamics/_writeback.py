@@ -123,26 +123,26 @@ def _write_urdf_dynamics(model, theta: torch.Tensor, root: ET.Element) -> None:
     if not kinds:
         return
     values = _terms(model, theta, kinds).numpy()
-    gear = np.ones(model.n_dof)  # joint-side factor of each joint's slot: r for a lone motor
+    # per joint, the slot whose terms it gets and their joint-side factor (r for a lone motor)
+    side = {j: (j, 1.0) for j in range(model.n_dof)}
     t = model.transmission
     if t is not None:
-        for slot, row in zip(t.indices(model.joint_names), t.ratio, strict=True):
-            gear[slot] = np.nan  # a coupled motor: no URDF field
-            if (row != 0).sum() == 1:
-                target = t.indices(model.joint_names)[int(np.flatnonzero(row)[0])]
-                values[target] = values[slot]
-                gear[target] = abs(float(row[row != 0][0]))
+        slots = t.indices(model.joint_names)
+        for j in slots:
+            del side[j]  # a joint a motor drives: only a lone motor's terms have a field
+        for slot, row in zip(slots, t.ratio, strict=True):
+            turned = np.flatnonzero(row)
+            if len(turned) == 1:
+                side[slots[int(turned[0])]] = (slot, abs(float(row[turned[0]])))
     power = np.array([2.0 if kind == "viscous" else 1.0 for kind in kinds])
     joints = {el.get("name"): el for el in root.findall("joint")}
-    for j, name in enumerate(model.joint_names):
-        if not np.isfinite(gear[j]):
-            continue
-        el = joints[name]
+    for j, (slot, gear) in side.items():
+        el = joints[model.joint_names[j]]
         dyn = el.find("dynamics")
         if dyn is None:
             dyn = ET.SubElement(el, "dynamics")
         for k, kind in enumerate(kinds):
-            dyn.set(_URDF_DYNAMICS[kind], _fmt(float(values[j, k] * gear[j] ** power[k])))
+            dyn.set(_URDF_DYNAMICS[kind], _fmt(float(values[slot, k] * gear ** power[k])))
 
 
 def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:

@@ -185,14 +185,14 @@ def _rollouts(model, theta, per_log) -> dict:
     from ..sim import description_model, mujoco_model, offset_torques, replay
 
     try:
-        identified = mujoco_model(model, theta)
+        models = {"identified": mujoco_model(model, theta), "description": description_model(model)}
     except ValueError as exc:  # inconsistent parameters have no MJCF
         raise IdentificationError(f"no MuJoCo rollouts: {exc}") from None
+    offsets = {"identified": offset_torques(model, theta)}
     out = {}
     for source, (log, _) in per_log.items():
-        models = {"identified": identified, "description": description_model(model)}
         try:
-            out[source] = replay(models, log, offsets={"identified": offset_torques(model, theta)})
+            out[source] = replay(models, log, offsets=offsets)
         except ValueError as exc:
             raise IdentificationError(f"{source}: no MuJoCo rollouts: {exc}") from None
     return out

@@ -275,10 +275,9 @@ def project(
         except ValueError:  # the solver did not reach an optimum: the other starts remain
             start = None
     solve = {"warm_start": warm_start, "max_iter": int(max_iter), "tol": float(tol)}
-    with single_thread():
-        fitted, n_iter, n_eval, converged = _solve(
-            cls, layout, problem, **solve, verbose=verbose, start=start
-        )
+    fitted, n_iter, n_eval, converged = _solve(
+        cls, layout, problem, **solve, verbose=verbose, start=start
+    )
     if solver == "sdp" and not _consistent_as_given(cls, layout, problem):
         fitted, more = _rescaled_sdp(cls, layout, problem, parametrization, fitted, solve)
         n_iter, n_eval = n_iter + more[0], n_eval + more[1]
@@ -472,10 +471,9 @@ def _rescaled_sdp(cls, layout, problem: Problem, parametrization: str, fitted, s
     # that the directions the data leave free do not follow round-off from run to run
     if not float(problem.loss(optimum)) < float(problem.loss(theta)) - _LOWER:
         return fitted, (0, 0, None)
-    with single_thread():
-        polished, k, e, converged = _solve(
-            cls, layout, problem, **solve, verbose=False, start=cls.from_theta(optimum, layout)
-        )
+    polished, k, e, converged = _solve(
+        cls, layout, problem, **solve, verbose=False, start=cls.from_theta(optimum, layout)
+    )
     with torch.no_grad():
         better = float(problem.loss(polished())) < float(problem.loss(theta)) - _LOWER
     return (polished, (k, e, converged)) if better else (fitted, (k, e, None))
