@@ -12,6 +12,7 @@ solver's answer no further than its own accuracy above the projection's.
 """
 
 import importlib.metadata
+from pathlib import Path
 
 import pytest
 import torch
@@ -149,3 +150,31 @@ def test_the_description_fills_what_the_data_leave_undetermined():
     nominal = float(model.nominal_theta[m0])
     assert nominal > 1.0
     assert float(result.theta[m0]) == pytest.approx(nominal, rel=1e-2)
+
+
+PANDA_LOG = Path(__file__).resolve().parents[3] / "shared" / "data" / "panda_gaz2019"
+
+
+@pytest.mark.skipif(not (PANDA_LOG / "torques.txt").is_file(), reason="no real Panda log")
+@pytest.mark.parametrize("prior", [False, True])
+def test_the_certificate_holds_on_the_real_panda_log(prior):
+    """A real log's least-squares estimate (the Panda's link-side torques, the default joint
+    terms, the default cut-off) projected with and without the description as a prior: at the
+    semidefinite optimum within the certificate's tolerance."""
+    from real_panda import load_panda
+
+    from torchjfa.data import DEFAULT_CUTOFF_HZ, prepare
+    from torchjfa.identification import load_model
+
+    model = load_model("panda_arm")
+    log = prepare(load_panda(PANDA_LOG), cutoff_hz=DEFAULT_CUTOFF_HZ, period_s=None)
+    moments = model.moments(log.q, log.qd, log.qdd, log.tau)
+    theta_hat = OLS(fit_intercept=False).fit_moments(moments).coef_.to(torch.float64)
+    kw = {"layout": model, "moments": moments, "ridge": RIDGE, "parametrization": "log-cholesky"}
+    if prior:
+        scale = parameter_scales(model.parameter_names, model.nominal_theta, moments)
+        kw.update(prior=model.nominal_theta, prior_weight=1.0, prior_scale=scale)
+    result = project(theta_hat, **kw)
+    assert check(result.theta, model).ok
+    ok, gap = certify(result, project_convex(theta_hat, **kw, reference=result.theta))
+    assert ok and gap >= -REFERENCE_ACCURACY, gap
