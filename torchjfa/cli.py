@@ -140,12 +140,16 @@ def _evaluate_simulated(args) -> int:
 def cmd_payload(args) -> int:
     from .identification._payload import identify_payload
 
+    if args.mass is not None:
+        return _drive_gains(args)
     payload = identify_payload(
-        args.model, args.loaded, link=args.link, unloaded=args.unloaded, options=_reading(args)
-    )
+        args.model, args.loaded, link=args.link, unloaded=args.unloaded, options=_reading(args),
+        bounds=args.bounds,
+    )  # fmt: skip
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
+    (out / "payload.md").write_text(payload.markdown())
     from .identification._payload import write_with_payload
 
     described = None
@@ -153,14 +157,29 @@ def cmd_payload(args) -> int:
         described = write_with_payload(args.model, payload, out)
     except (UsageError, ValueError) as exc:
         print(f"warning: the description with the payload was not written: {exc}", file=sys.stderr)
-    com = ", ".join(f"{x:.4g}" for x in payload.com.tolist())
-    print(f"payload on {args.link}: {payload.mass:.4g} kg (+- {float(payload.std[0]):.2g}), "
-          f"centre of mass ({com}) m in its frame; {payload.how}")  # fmt: skip
-    print(
-        f"held-out torque RMS: {float(payload.rms_without.mean()):.4g} N m without the payload, "
-        f"{float(payload.rms_with.mean()):.4g} with it; written: {out / 'payload.json'}"
-        + (f", {described}" if described is not None else "")
-    )
+    print(payload.markdown(brief=True))
+    print(f"written: {out / 'payload.json'}, {out / 'payload.md'}"
+          + (f", {described}" if described is not None else ""))  # fmt: skip
+    return 0
+
+
+def _drive_gains(args) -> int:
+    """``torchjfa payload ... --mass KG --unloaded LOG``: the drive gains (drive_gains.json)."""
+    from .identification import identify_drive_gains
+
+    if not args.unloaded:
+        raise UsageError("--mass identifies the drive gains and needs --unloaded runs too")
+    found = identify_drive_gains(
+        args.model, args.loaded, args.unloaded, link=args.link, mass=args.mass,
+        options=_reading(args),
+    )  # fmt: skip
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "drive_gains.json").write_text(json.dumps(found.summary(), indent=1))
+    print(f"drive gains from a {args.mass:g} kg payload on {args.link} (spreads: jackknife):")
+    print(found.table())
+    gains = ",".join(f"{g:.6g}" for g in found.gains.tolist())
+    print(f"read logs with them: --drive-gains {gains}; written: {out / 'drive_gains.json'}")
     return 0
 
 
@@ -267,6 +286,22 @@ def _add_payload(sub) -> argparse.ArgumentParser:
     p.add_argument("loaded", nargs="+", metavar="LOG", help="logs with the payload mounted")
     p.add_argument("--link", required=True, help="the frame the payload is fixed to")
     p.add_argument("--unloaded", nargs="+", default=None, metavar="LOG", help="logs without it")
+    p.add_argument(
+        "--mass",
+        type=float,
+        default=None,
+        metavar="KG",
+        help="the payload's known mass: identify the per-joint drive gains (N m/A; torque scales "
+        "for torque logs) instead, with the robot fitted again; needs --unloaded; the logs are "
+        "read with --drive-gains as the nominal gains; writes drive_gains.json",
+    )
+    p.add_argument(
+        "--bounds",
+        default=None,
+        metavar="REGION",
+        help="the region of the link's frame the payload lies in, metres: sphere:R (about the "
+        "link's origin), sphere:X,Y,Z,R or box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
+    )
     p.add_argument("--out", default="payload", help="output folder")
     _add_reading(p)
     p.set_defaults(func=cmd_payload)

@@ -21,7 +21,9 @@ from `Options`' fields. The stages, in order, each taking the previous one's out
 several estimators on the same data; `signal_bootstrap` refits on re-drawn sensor noise for the
 spread of the unconstrained estimate. `evaluate` judges an identified model on other logs
 (``torchjfa evaluate``), against the measured torque as `validate` does (`measured_torque`);
-`identify_payload` identifies a body fixed to a link (``torchjfa payload``).
+`identify_payload` identifies a body fixed to a link (``torchjfa payload``);
+`identify_drive_gains` the per-joint drive gains from a payload of known mass (``torchjfa
+payload --mass``).
 """
 
 from .._result import IdentificationResult as IdentificationResult
@@ -35,6 +37,8 @@ from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
 from ._fit import fit as fit
 from ._fit import make_estimator as make_estimator
+from ._gains import DriveGains as DriveGains
+from ._gains import identify_drive_gains as identify_drive_gains
 from ._identify import Identification as Identification
 from ._identify import identify as identify
 from ._noise import NoiseChoice as NoiseChoice

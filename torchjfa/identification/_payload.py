@@ -16,11 +16,14 @@ regressor), and
   e`` (least squares on the stacked rows): what the robot's model gets wrong is common to both
   kinds and cancels in ``pi_L``, and the runs need not be aligned in time.
 
-Either estimate is then projected onto a physically consistent body (positive definite
-pseudo-inertia, `torchjfa.physical.project` with the payload's moments as the metric). Each
-log is prepared as `identify` prepares it (the identified model's cut-off, the rest at the
-ends dropped); the last ``options.validation`` of each loaded log is held out to judge the
-torques with and without the payload.
+Either estimate is then made physically consistent: the closest payload in the data's metric
+(``Z^T Z``) with a positive semidefinite pseudo-inertia, inside ``bounds`` when the user gives a
+region the payload lies in (`Bounds`: a sphere or a box in the link's frame), a semidefinite
+program (`consistent_payload`). Spreads come from a delete-one-block jackknife over contiguous
+blocks of the logs; a parameter whose spread is large against its scale is marked as not
+determined (`Payload.determined`). Each log is prepared as `identify` prepares it (the
+identified model's cut-off, the rest at the ends dropped); the last ``options.validation`` of
+each loaded log is held out to judge the torques with and without the payload.
 """
 
 from __future__ import annotations
@@ -31,20 +34,96 @@ from pathlib import Path
 import torch
 
 from ..data import DEFAULT_CUTOFF_HZ, JointLog
-from ..dynamics import ParameterLayout, RigidBodyModel
+from ..dynamics import RigidBodyModel
 from ..dynamics._parameters import inertial_from_vector, pseudo_inertia
-from ..physical import inertial_from_pseudo_inertia, project
+from ..physical import inertial_from_pseudo_inertia
 from ._evaluate import _identified
 from ._options import IdentificationError, Options
 from ._prepare import concatenate, read_prepared, several
 
 __all__ = [
+    "DETERMINED_SPREAD",
+    "Bounds",
     "Payload",
     "identify_payload",
     "payload_regressor",
     "transform_map",
     "write_with_payload",
 ]
+
+
+#: the names of the payload's 10 parameters, in order
+PARAMETERS = ("m", "hx", "hy", "hz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
+#: a parameter whose spread exceeds this share of its scale is reported as not determined
+DETERMINED_SPREAD = 0.2
+#: contiguous blocks of the logs for the jackknife spreads
+BLOCKS = 10
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """A region of the link's frame the payload's mass lies in: a sphere (``centre``, ``radius``)
+    or an axis-aligned box (``low``, ``high``), metres.
+
+    The conditions are linear in the payload's pseudo-inertia ``J = [[Sigma, h], [h^T, m]]``
+    (``Sigma`` the second moments about the link's origin): for a sphere ``int (r^2 - |x -
+    c|^2) dm >= 0``, for a box ``int (x_k - low_k) (high_k - x_k) dm >= 0`` per axis (with ``J
+    >= 0``, exact for the sphere; for the box they bound each axis' spread, which keeps the
+    centre of mass inside).
+    """
+
+    kind: str
+    values: tuple[float, ...]
+
+    @classmethod
+    def parse(cls, text: str) -> Bounds:
+        """``"sphere:R"`` (about the link's origin), ``"sphere:X,Y,Z,R"`` or
+        ``"box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"``, metres in the link's frame.
+
+        Raises:
+            IdentificationError: on anything else.
+        """
+        kind, _, rest = str(text).partition(":")
+        try:
+            values = tuple(float(v) for v in rest.split(",")) if rest else ()
+        except ValueError:
+            values = ()
+        if kind == "sphere" and len(values) == 1:
+            values = (0.0, 0.0, 0.0, *values)
+        ok = (kind == "sphere" and len(values) == 4 and values[3] > 0) or (
+            kind == "box" and len(values) == 6 and all(values[k] < values[k + 3] for k in range(3))
+        )
+        if not ok:
+            raise IdentificationError(
+                f"bounds {text!r}: give sphere:R, sphere:X,Y,Z,R (R > 0) or "
+                "box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX (each min below its max), metres in the "
+                "link's frame"
+            )
+        return cls(kind, values)
+
+    def matrices(self) -> list:
+        """The ``(4, 4)`` matrices ``Q`` with ``tr(J Q) >= 0`` the conditions."""
+        import numpy as np
+
+        if self.kind == "sphere":
+            c, r = np.array(self.values[:3]), self.values[3]
+            Q = np.zeros((4, 4))
+            Q[:3, :3] = -np.eye(3)
+            Q[:3, 3] = Q[3, :3] = c
+            Q[3, 3] = r * r - c @ c
+            return [Q]
+        out = []
+        for k in range(3):
+            lo, hi = self.values[k], self.values[k + 3]
+            Q = np.zeros((4, 4))
+            Q[k, k] = -1.0
+            Q[k, 3] = Q[3, k] = 0.5 * (lo + hi)
+            Q[3, 3] = -lo * hi
+            out.append(Q)
+        return out
+
+    def __str__(self) -> str:
+        return f"{self.kind}:{','.join(f'{v:g}' for v in self.values)}"
 
 
 def transform_map(T: torch.Tensor) -> torch.Tensor:
@@ -93,7 +172,15 @@ class Payload:
             mass, kg m^2.
         theta: ``(10,)`` the consistent parameters ``(m, m c, I_o)`` in the link's frame.
         theta_hat: ``(10,)`` the least-squares estimate before the projection.
-        std: ``(10,)`` least-squares standard errors of ``theta_hat``.
+        std: ``(10,)`` spreads of ``theta_hat``: a delete-one-block jackknife over contiguous
+            blocks of the logs (filtered rows are correlated; least-squares standard errors on
+            the rows would understate them).
+        determined: ``(10,)`` bool: the spread at most `DETERMINED_SPREAD` of the parameter's
+            scale (the mass for ``m``, ``m L`` for ``h``, ``m L^2`` for ``I_o``, ``L`` the
+            payload's radius of gyration about the link's origin, at least 1 cm); an
+            undetermined parameter takes the value the consistency (and ``bounds``) leave
+            closest to the data.
+        bounds: the region the payload was kept inside, or None.
         rms_without, rms_with: ``(n_dof,)`` held-out torque RMS of the robot model alone and
             with the payload, N m.
         how: how the estimate was made (for the report).
@@ -106,9 +193,71 @@ class Payload:
     theta: torch.Tensor
     theta_hat: torch.Tensor
     std: torch.Tensor
+    determined: torch.Tensor
+    bounds: Bounds | None
     rms_without: torch.Tensor
     rms_with: torch.Tensor
     how: str
+
+    def markdown(self, brief: bool = False) -> str:
+        """A short report: the verdict (mass, centre of mass, held-out torques without and
+        with the payload, what the logs do not determine), then, unless ``brief``, the
+        parameters with their spreads and the principal moments."""
+        m_std = float(self.std[0])
+        c_std = (self.std[1:4] / max(self.mass, 1e-12)).tolist()
+        com = ", ".join(
+            f"{c:.4f} +- {e:.2g}" for c, e in zip(self.com.tolist(), c_std, strict=True)
+        )
+        without, with_ = float(self.rms_without.mean()), float(self.rms_with.mean())
+        loose = [n for n, ok in zip(PARAMETERS, self.determined.tolist(), strict=True) if not ok]
+        lines = [
+            f"# Payload on {self.link}",
+            "",
+            f"- mass {self.mass:.4g} kg +- {m_std:.2g} (jackknife spread of the estimate)",
+            f"- centre of mass ({com}) m in {self.link}'s frame",
+            f"- held-out torque RMS, mean over joints: {without:.4g} N m with the robot model "
+            f"alone, {with_:.4g} N m with the payload ({with_ / max(without, 1e-300):.2f}x)",
+            "- every parameter determined by the logs"
+            if not loose
+            else f"- not determined by the logs (not excited, or a spread above "
+            f"{DETERMINED_SPREAD:.0%} of its scale): {', '.join(loose)}; they take the "
+            "consistent values closest to the data",
+            f"- how: {self.how}" + (f"; kept inside {self.bounds}" if self.bounds else ""),
+        ]
+        if brief:
+            return "\n".join(lines)
+        principal = torch.linalg.eigvalsh(self.inertia).tolist()
+        lines += [
+            "",
+            f"## Parameters in {self.link}'s frame",
+            "",
+            "| parameter | consistent | least squares | spread | determined |",
+            "|---|---|---|---|---|",
+            *(
+                f"| {n} | {float(v):.4g} | {float(h):.4g} | {float(e):.2g} | "
+                f"{'yes' if ok else 'no'} |"
+                for n, v, h, e, ok in zip(
+                    PARAMETERS,
+                    self.theta,
+                    self.theta_hat,
+                    self.std,
+                    self.determined.tolist(),
+                    strict=True,
+                )
+            ),
+            "",
+            "m in kg, h = m c in kg m, I about the frame's origin in kg m^2.",
+            "Principal moments about the centre of mass: "
+            + ", ".join(f"{v:.4g}" for v in principal)
+            + " kg m^2.",
+            "",
+            "Held-out torque RMS per joint, N m (robot alone / with the payload): "
+            + ", ".join(
+                f"{a:.3g} / {b:.3g}"
+                for a, b in zip(self.rms_without.tolist(), self.rms_with.tolist(), strict=True)
+            ),
+        ]
+        return "\n".join(lines) + "\n"
 
     def summary(self) -> dict:
         """JSON-ready numbers: ``mass``, ``com``, ``inertia`` and their spreads."""
@@ -121,6 +270,8 @@ class Payload:
             "theta": self.theta.tolist(),
             "theta_hat": self.theta_hat.tolist(),
             "theta_hat_std": self.std.tolist(),
+            "determined": dict(zip(PARAMETERS, self.determined.tolist(), strict=True)),
+            "bounds": None if self.bounds is None else str(self.bounds),
             "held_out_rms_without": self.rms_without.tolist(),
             "held_out_rms_with": self.rms_with.tolist(),
             "how": self.how,
@@ -153,6 +304,7 @@ def identify_payload(
     link: str,
     unloaded=None,
     options: Options | None = None,
+    bounds: Bounds | str | None = None,
 ) -> Payload:
     """The payload fixed to ``link`` from loaded logs (see the module).
 
@@ -163,12 +315,15 @@ def identify_payload(
         link: the frame the payload is fixed to (e.g. the flange, ``"ee_link"``).
         unloaded: logs without it, or None (see the module).
         options: `Options` (reading, ``filter``, ``velocity``, ``validation``, ``trim_rest``).
+        bounds: a region of the link's frame the payload lies in (`Bounds` or its text, e.g.
+            ``"sphere:0.15"``), or None.
 
     Raises:
         IdentificationError: on a link that carries nothing, or logs of other joints.
         torchjfa.data.LogError: on a log that cannot be read or prepared.
     """
     options = Options() if options is None else options
+    bounds = Bounds.parse(bounds) if isinstance(bounds, str) else bounds
     model, theta, stored = _identified(identified)
     cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
     j, A = payload_regressor(model, link)
@@ -176,6 +331,7 @@ def identify_payload(
     train, held = _prepared(loaded, model, options, cutoff)
     Y, tau = _rows(model, train)
     Z = Y[:, cols] @ A
+    which = _block_of_rows(Y.shape[0], model.n_dof)
     if unloaded is None:
         X, y = Z, tau - Y @ theta
         how = "the loaded logs' torques less the identified robot's prediction"
@@ -184,25 +340,105 @@ def identify_payload(
         Yu, tau_u = _rows(model, free)
         X = torch.cat([torch.cat([Z, Y], 1), torch.cat([torch.zeros_like(Yu[:, :10]), Yu], 1)])
         y = torch.cat([tau, tau_u])
+        which = torch.cat([which, _block_of_rows(Yu.shape[0], model.n_dof)])
         how = "loaded and unloaded runs together, the robot's parameters fitted again"
-    sol, *_ = torch.linalg.lstsq(X, y.unsqueeze(1), driver="gelsd")
-    sol = sol.flatten()
-    resid = y - X @ sol
-    dof = max(1, X.shape[0] - X.shape[1])
-    cov = torch.linalg.pinv(X.T @ X) * float(resid @ resid) / dof
-    pi_hat, std = sol[:10], cov.diagonal()[:10].clamp_min(0).sqrt()
+    pi_hat = _lstsq(X, y)[:10]
+    std = _jackknife(X, y, which)
     metric = Z.T @ Z
-    single = ParameterLayout((link,), ())
-    pi = project(pi_hat, layout=single, metric=metric, parametrization="log-cholesky").theta
+    pi = consistent_payload(pi_hat, metric, bounds)
     mass, com, inertia = inertial_from_vector(pi)
     Yh, tau_h = _rows(model, held)
     base = tau_h - Yh @ theta
     without = base.reshape(-1, model.n_dof)
     with_ = (base - (Yh[:, cols] @ A) @ pi).reshape(-1, model.n_dof)
     return Payload(
-        link, float(mass), com, inertia, pi, pi_hat, std,
+        link, float(mass), com, inertia, pi, pi_hat, std, _determined(pi, std, X), bounds,
         without.pow(2).mean(0).sqrt(), with_.pow(2).mean(0).sqrt(), how,
     )  # fmt: skip
+
+
+def _block_of_rows(n_rows: int, n_dof: int) -> torch.Tensor:
+    """``(n_rows,)`` the jackknife block of each row (a sample's joints stay together)."""
+    samples = torch.arange(n_rows) // n_dof
+    return samples * BLOCKS // max(1, n_rows // n_dof)
+
+
+def _lstsq(X: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    return torch.linalg.lstsq(X, y.unsqueeze(1), driver="gelsd").solution.flatten()
+
+
+def _jackknife(X: torch.Tensor, y: torch.Tensor, which: torch.Tensor) -> torch.Tensor:
+    """``(10,)`` the delete-one-block jackknife spread of the payload's least-squares estimate."""
+    est = torch.stack([_lstsq(X[which != b], y[which != b])[:10] for b in range(BLOCKS)])
+    return ((BLOCKS - 1) / BLOCKS * (est - est.mean(0)).pow(2).sum(0)).sqrt()
+
+
+def _scale(pi: torch.Tensor) -> tuple[float, float]:
+    """``(m_s, L)``: the payload's mass and radius of gyration about the link's origin (at
+    least 1 cm, at most 1 m), its units."""
+    m = max(abs(float(pi[0])), 1e-6)
+    trace = abs(float(pi[4] + pi[6] + pi[9]))
+    return m, min(max((trace / (2 * m)) ** 0.5, 0.01), 1.0)
+
+
+def _determined(pi: torch.Tensor, std: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
+    """``(10,)`` bool: the parameter is estimable from the rows ``X`` (its unit vector has no
+    part in ``X``'s null space: a column the motion never excites has one) and its spread is
+    at most `DETERMINED_SPREAD` of its scale."""
+    m, L = _scale(pi)
+    unit = torch.tensor([m, *(m * L,) * 3, *(m * L * L,) * 6], dtype=torch.float64)
+    norms = X.norm(dim=0).clamp_min(1e-300)
+    _, sv, Vh = torch.linalg.svd(X / norms, full_matrices=False)
+    null = Vh[sv <= 1e-9 * sv[0]]  # (k, n_cols), columns scaled to unit norm
+    free = null[:, :10].norm(dim=0) > 1e-6 if null.numel() else torch.zeros(10, dtype=torch.bool)
+    excited = X[:, :10].norm(dim=0) > 0
+    return excited & ~free & (std <= DETERMINED_SPREAD * unit)
+
+
+def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Tensor:
+    """``(10,)`` the physically consistent payload closest to ``pi_hat`` in ``metric`` (the
+    payload's normal matrix ``Z^T Z``): positive semidefinite pseudo-inertia, inside
+    ``bounds``; a semidefinite program (cvxpy, Clarabel), a 1e-8 tie-break towards zero in
+    the directions the data leave free.
+
+    Raises:
+        IdentificationError: if no payload fits inside the bounds (e.g. they exclude every
+            mass) or the solver fails.
+    """
+    import warnings
+
+    import numpy as np
+
+    from ..physical._convex import _SETTINGS, MARGIN, _cvxpy
+
+    cp = _cvxpy()
+    m_s, L = _scale(pi_hat)
+    S = np.array([m_s, *(m_s * L,) * 3, *(m_s * L * L,) * 6])
+    basis = pseudo_inertia(torch.eye(10, dtype=torch.float64)).numpy()  # (10, 4, 4)
+    T = np.diag([1 / L, 1 / L, 1 / L, 1.0])
+    B = np.stack([T @ basis[k] @ T * S[k] / m_s for k in range(10)]).reshape(10, 16).T
+    H = S[:, None] * metric.numpy() * S[None, :]
+    unit = max(float(np.trace(H)) / 10, 1e-300)
+    w, V = np.linalg.eigh(0.5 * (H + H.T) / unit)
+    R = (V * np.sqrt(np.clip(w, 0.0, None))).T
+    x = cp.Variable(10)
+    x_hat = pi_hat.numpy() / S
+    J = cp.reshape(B @ x, (4, 4), order="C")
+    constraints = [0.5 * (J + J.T) >> MARGIN * np.eye(4)]
+    for Q in [] if bounds is None else bounds.matrices():
+        coef = np.array([np.trace(basis[k] @ Q) for k in range(10)]) * S / (m_s * L * L)
+        constraints.append(coef @ x >= 0)
+    cost = cp.sum_squares(R @ (x - x_hat)) + 1e-8 * cp.sum_squares(x)
+    problem = cp.Problem(cp.Minimize(cost), constraints)
+    with warnings.catch_warnings():  # the status says it
+        warnings.simplefilter("ignore", UserWarning)
+        problem.solve(solver="CLARABEL", **_SETTINGS["CLARABEL"])
+    if problem.status not in ("optimal", "optimal_inaccurate") or x.value is None:
+        raise IdentificationError(
+            f"no consistent payload {'inside ' + str(bounds) if bounds else ''} fits the "
+            f"logs (solver status {problem.status})"
+        )
+    return torch.as_tensor(x.value * S)
 
 
 def write_with_payload(identified, payload: Payload, folder) -> Path:
