@@ -84,6 +84,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "(-log lambda_min)",
     )  # fmt: skip
     p.add_argument(
+        "--payload", default=None, metavar="LINK",
+        help="design for the parameters of a payload fixed to LINK alone (the robot's model "
+        "given, as torchjfa payload uses it) instead of the robot's",
+    )  # fmt: skip
+    p.add_argument(
         "--friction", type=friction_terms, default=("viscous",),
         help="joint terms in the parameters, comma separated (viscous, coulomb, offset, ...) "
         "or 'none'",
@@ -260,6 +265,7 @@ def _design(args, model, limits, rate: float, posture):
         polish_starts=args.polish_starts,
         seed=args.seed,
         progress=not args.quiet,
+        payload=args.payload,
     )
     rnd = random_excitation(
         model, limits, base_frequency=args.base_freq, harmonics=args.harmonics, rate=rate,
@@ -306,6 +312,7 @@ def _summary(args, model, res, rnd_margins, info, rate: float) -> dict:
     return {
         "robot": args.robot,
         "command": "torchjfa " + " ".join(shlex.quote(a) for a in getattr(args, "argv", [])),
+        "payload": args.payload,
         "criterion": res.criterion,
         "duration_s": args.duration,
         "base_frequency_hz": args.base_freq,

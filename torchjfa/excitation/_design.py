@@ -53,7 +53,13 @@ from ..sim import SinusoidTrajectory, random_trajectory
 from ._check import check_limits, physical_margins
 from ._fourier import FourierTrajectory, constrain_coefficients
 from ._geometry import Geometry, start_geometry
-from ._information import CRITERIA, base_directions, period_grid, trajectory_information
+from ._information import (
+    CRITERIA,
+    base_directions,
+    payload_directions,
+    period_grid,
+    trajectory_information,
+)
 from ._limits import JOINT_KINDS as JOINT_KINDS
 from ._limits import Limits, _Kinematics
 from ._problem import _EDGE as _EDGE
@@ -158,6 +164,7 @@ def optimize_excitation(
     seed: int | None = 0,
     generator: torch.Generator | None = None,
     progress: bool = False,
+    payload: str | None = None,
 ) -> ExcitationResult:
     """Optimise a Fourier excitation for the identification of ``model``.
 
@@ -193,6 +200,8 @@ def optimize_excitation(
         seed: seeds the `torch.Generator` when ``generator`` is None.
         generator: the random starts' and base directions' generator.
         progress: show a progress bar.
+        payload: a link: design for the parameters of a payload fixed to it alone (the
+            robot's model given; `payload_directions`) instead of the robot's.
 
     Returns:
         An `ExcitationResult`.
@@ -226,7 +235,10 @@ def optimize_excitation(
     g = generator if generator is not None else torch.Generator()
     if generator is None and seed is not None:
         g.manual_seed(int(seed))
-    basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
+    if payload is None:
+        basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
+    else:
+        basis = payload_directions(model, limits, payload, joint_weights=joint_weights, generator=g)
     kin = None
     if limits.workspace:
         kin = _Kinematics(model, [b.frame for b in limits.workspace])

@@ -21,6 +21,7 @@ from ._limits import Limits
 __all__ = [
     "CRITERIA",
     "base_directions",
+    "payload_directions",
     "information_matrix",
     "criterion_value",
     "soft_condition",
@@ -47,7 +48,8 @@ def base_directions(
     ``rtol * s_max`` span what any motion can identify.
 
     Args:
-        model, limits: the robot and its `Limits`.
+        model: the robot.
+        limits: its `Limits`.
         n_samples: random states (default ``max(200, 4 * n_params)``).
         joint_weights: ``(n_dof,)`` weights of each joint's equations (default 1).
         rtol: relative rank tolerance.
@@ -56,6 +58,54 @@ def base_directions(
     Returns:
         ``(n_params, r)`` float64 basis V.
     """
+    Y = _random_regressor(model, limits, n_samples, joint_weights, generator)
+    _, s, Vh = torch.linalg.svd(Y, full_matrices=False)
+    r = int((s > rtol * s[0]).sum())
+    return Vh[:r].T.contiguous()
+
+
+def payload_directions(
+    model: RigidBodyModel,
+    limits: Limits,
+    link: str,
+    *,
+    n_samples: int | None = None,
+    joint_weights=None,
+    rtol: float = 1e-9,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """The parameter directions of a payload fixed to ``link``, for an excitation that
+    identifies the payload alone (the robot's model given).
+
+    A payload's 10 parameters ``pi`` in ``link``'s frame enter the torques as ``E A pi``
+    (``E`` the carrying body's 10 columns of theta, ``A`` the rigid map of
+    `torchjfa.identification._payload.payload_regressor`). Of the payload's directions, those
+    some motion reveals are the right singular vectors of ``Y E A`` at random states (as
+    `base_directions` draws them) above ``rtol * s_max``; the basis returned is ``E A B``,
+    ``(n_params, r)``, so that the information ``V^T Y^T W Y V`` is the payload's.
+
+    Raises:
+        ValueError: if ``link`` is no frame of the robot or is fixed to its base.
+    """
+    from ..identification._errors import IdentificationError
+    from ..identification._payload import payload_regressor
+
+    try:
+        j, A = payload_regressor(model, link)
+    except IdentificationError as exc:
+        raise ValueError(str(exc)) from None
+    cols = model.layout.split(torch.arange(model.n_params))[0][j]
+    EA = torch.zeros(model.n_params, 10, dtype=torch.float64)
+    EA[cols] = A
+    Z = _random_regressor(model, limits, n_samples, joint_weights, generator) @ EA
+    _, s, Vh = torch.linalg.svd(Z, full_matrices=False)
+    r = int((s > rtol * s[0]).sum())
+    return EA @ Vh[:r].T
+
+
+def _random_regressor(model, limits, n_samples, joint_weights, generator) -> torch.Tensor:
+    """``(n_samples n_dof, n_params)`` the weighted regressor at random states (see
+    `base_directions`)."""
     n, P = model.n_dof, model.n_params
     B = max(200, 4 * P) if n_samples is None else int(n_samples)
     g = generator
@@ -68,9 +118,7 @@ def base_directions(
     qd = vmax * (2 * torch.rand(B, n, generator=g, **kw) - 1)
     qdd = amax * (2 * torch.rand(B, n, generator=g, **kw) - 1)
     Y = model.regressor(q, qd, qdd) * _sqrt_weights(joint_weights, n)[:, None]
-    _, s, Vh = torch.linalg.svd(Y.reshape(-1, P), full_matrices=False)
-    r = int((s > rtol * s[0]).sum())
-    return Vh[:r].T.contiguous()
+    return Y.reshape(-1, P)
 
 
 def _sqrt_weights(joint_weights, n: int, like: torch.Tensor | None = None) -> torch.Tensor:
@@ -87,7 +135,9 @@ def information_matrix(
 
     Args:
         model: the robot.
-        q, qd, qdd: ``(N, n_dof)`` states.
+        q: ``(N, n_dof)`` positions.
+        qd: ``(N, n_dof)`` velocities.
+        qdd: ``(N, n_dof)`` accelerations.
         basis: ``(n_params, r)`` V from `base_directions`.
         joint_weights: ``(n_dof,)`` W's diagonal (default 1).
     """
