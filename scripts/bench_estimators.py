@@ -2,8 +2,9 @@
 
     python scripts/bench_estimators.py            # N = 500,000 rows, d = 77 and d = 110
     python scripts/bench_estimators.py --quick    # a smoke run (N = 20,000, d = 20)
+    python scripts/bench_estimators.py --write-docs   # also into docs/benchmarks.md
 
-Data follow the seed paper's synthetic protocol (10 relevant inputs with a random covariance
+Data follow the paper's synthetic protocol (10 relevant inputs with a random covariance
 seen with noise at input SNR 2, redundant inputs that are convex combinations of the noisy
 relevant ones, irrelevant N(0, 1) inputs, output SNR 5), float64. Printed, all measured in the
 same run on the same data: ``numpy.linalg.lstsq``; the single pass ``X^T X``; building
@@ -20,6 +21,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -246,16 +248,29 @@ def batched_against_single(
     return {"batch": t_batch, "single": t_single, "ratio": ratio, "ratios": [t[0] for t in times]}
 
 
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--quick", action="store_true", help="smoke run: N = 20,000, d = 20")
-    parser.add_argument("--n", type=int, default=500_000)
-    parser.add_argument("--dims", type=int, nargs="+", default=[77, 110])
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
-    if args.quick:
-        run(n=20_000, dims=(20,), n_small=10_000, n_large=100_000, iter_probe=300, repeat=2)
-    else:
-        run(n=args.n, dims=tuple(args.dims), seed=args.seed)
+    p.add_argument("--quick", action="store_true", help="smoke run: N = 20,000, d = 20")
+    p.add_argument("--n", type=int, default=500_000, help="rows of the data")
+    p.add_argument("--dims", type=int, nargs="+", default=[77, 110], help="input dimensions d")
+    p.add_argument("--seed", type=int, default=0, help="seed of the data")
+    return page.add_option(p)
+
+
+def main(argv=None) -> list[dict]:
+    args = parser().parse_args(argv)
+    with page.recording(
+        "bench_estimators", "bench_estimators", args.write_docs, argv, smoke=args.quick
+    ):
+        if args.quick:
+            return run(
+                n=20_000, dims=(20,), n_small=10_000, n_large=100_000, iter_probe=300, repeat=2
+            )
+        return run(n=args.n, dims=tuple(args.dims), seed=args.seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -30,7 +30,9 @@ seeds, and their ratios random / optimised):
 * condition number of the base regressor of each trajectory (`trajectory_information`),
 * the optimisation's wall time.
 
-Goal (issue 20): errors 2x lower and condition number 5x lower for the optimised trajectory.
+Goal: errors 2x lower and condition number 5x lower for the optimised trajectory.
+
+    python scripts/bench_excitation.py --seeds 3 --quiet --write-docs   # into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from __future__ import annotations
 import argparse
 from types import SimpleNamespace
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -240,22 +243,30 @@ def _print(results, seeds, duration, f0, H, periods) -> None:
         print(f"{name:6s} {'optimisation s':22s} {r['optimised']['seconds']:11.1f}")
 
 
-def main(argv=None) -> None:
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
-    p.add_argument("--robots", default="head,arm,panda")
-    p.add_argument("--criterion", choices=CRITERIA, default="d+condition")
-    p.add_argument("--smoke", action="store_true", help="tiny sizes, one seed")
-    p.add_argument("--quiet", action="store_true")
-    a = p.parse_args(argv)
-    seeds = (0,) if a.smoke else tuple(range(a.seeds))
-    run(
-        robots=tuple(a.robots.split(",")),
-        seeds=seeds,
-        criterion=a.criterion,
-        smoke=a.smoke,
-        progress=not a.quiet,
+    p.add_argument("--robots", default="head,arm,panda", help="comma-separated: head, arm, panda")
+    p.add_argument(
+        "--criterion", choices=CRITERIA, default="d+condition", help="the excitation's criterion"
     )
+    p.add_argument("--smoke", action="store_true", help="tiny sizes, one seed")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return page.add_option(p)
+
+
+def main(argv=None) -> dict:
+    a = parser().parse_args(argv)
+    seeds = (0,) if a.smoke else tuple(range(a.seeds))
+    with page.recording("bench_excitation", "bench_excitation", a.write_docs, argv, smoke=a.smoke):
+        return run(
+            robots=tuple(a.robots.split(",")),
+            seeds=seeds,
+            criterion=a.criterion,
+            smoke=a.smoke,
+            progress=not a.quiet,
+        )
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ operators are printed, to show where the time goes.
 
     python scripts/bench_gradients.py                       # batches 1, 256, 10000
     python scripts/bench_gradients.py --batches 256 --repeats 3 --threads 1
+    python scripts/bench_gradients.py --threads 1 --write-docs   # also into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import _benchmarks_page as page
 import torch
 
 import torchjfa.robots
@@ -137,14 +139,22 @@ def run(batches=(1, 256, 10_000), repeats: int = 5, robot: str = "panda_arm", th
     return rows
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--batches", type=int, nargs="+", default=[1, 256, 10_000])
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--robot", default="panda_arm", choices=torchjfa.robots.available())
-    parser.add_argument("--threads", type=int, default=0)
-    args = parser.parse_args(argv)
-    run(tuple(args.batches), args.repeats, args.robot, args.threads)
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 256, 10_000], help="batch sizes")
+    p.add_argument("--repeats", type=int, default=5, help="timed calls (the best is kept)")
+    p.add_argument(
+        "--robot", default="panda_arm", choices=torchjfa.robots.available(), help="the robot"
+    )
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    return page.add_option(p)
+
+
+def main(argv=None) -> list[dict]:
+    args = parser().parse_args(argv)
+    with page.recording("bench_gradients", "bench_gradients", args.write_docs, argv):
+        return run(tuple(args.batches), args.repeats, args.robot, args.threads)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ references measured in the same run: one batched ``torch.linalg.eigh`` of the bo
 inertias, and the eigenvalue-clipping baseline (clip masses, clip eigenvalues of I_c).
 
     python scripts/bench_projection.py --n-joints 10
+    python scripts/bench_projection.py --repeats 3 --write-docs   # also into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import argparse
 import statistics
 import time
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -264,13 +266,25 @@ def run(
     return out
 
 
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--n-joints", type=int, default=10, help="joints of the random chain")
+    p.add_argument("--n-samples", type=int, default=2000, help="random states whose rows make X")
+    p.add_argument("--repeats", type=int, default=5, help="timed repetitions (the median)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the chain, data and damage")
+    p.add_argument("--reference", action="store_true", help="also solve by ADMM (slow)")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    return page.add_option(p)
+
+
+def main(argv=None) -> dict:
+    args = parser().parse_args(argv)
+    with page.recording("bench_projection", "bench_projection", args.write_docs, argv):
+        return run(
+            args.n_joints, args.n_samples, args.repeats, args.seed, args.reference, args.threads
+        )
+
+
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--n-joints", type=int, default=10)
-    parser.add_argument("--n-samples", type=int, default=2000)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--reference", action="store_true", help="also solve by ADMM (slow)")
-    parser.add_argument("--threads", type=int, default=1)
-    args = parser.parse_args()
-    run(args.n_joints, args.n_samples, args.repeats, args.seed, args.reference, args.threads)
+    main()

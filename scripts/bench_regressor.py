@@ -24,6 +24,7 @@ the compiled kernel (the default wherever a C++ compiler is found) gives the tor
     python scripts/bench_regressor.py                 # batches 1e3, 1e4, 1e5; 1 and 2 threads
     python scripts/bench_regressor.py --batches 1000 --repeats 1   # quick
     python scripts/bench_regressor.py --threads 1 --robot panda    # one thread, 9-DoF Panda
+    python scripts/bench_regressor.py --repeats 3 --write-docs     # the summary into the docs
 
 On a machine shared with other work, torch's multi-threaded kernels can be slower than one
 thread (OpenMP threads wait for busy cores); Pinocchio and MuJoCo run on one thread.
@@ -38,6 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -271,12 +273,21 @@ def _summary(results, threads, default_threads, build) -> None:
         print("| " + " | ".join(cells) + " |")
 
 
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batches", type=int, nargs="+", default=[1_000, 10_000, 100_000])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
+def summary_markdown(printed: str) -> str:
+    """The summary table of a run's output (what ``--write-docs`` writes): from its title on."""
+    at = printed.rfind("\nsummary (")
+    return printed[at + 1 :] if at >= 0 else page.fenced(printed)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--batches", type=int, nargs="+", default=[1_000, 10_000, 100_000], help="batch sizes"
+    )
+    p.add_argument("--repeats", type=int, default=3, help="timed calls (the best is kept)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random states")
+    p.add_argument(
         "--threads",
         type=int,
         nargs="+",
@@ -284,12 +295,23 @@ if __name__ == "__main__":
         help="torch thread counts to time the regressor with (default 1 and 2; 0: torch's "
         "default); Pinocchio and MuJoCo loops run on one thread",
     )
-    parser.add_argument("--robot", default="panda_arm", help="panda_arm (7 DoF) or panda (9 DoF)")
-    args = parser.parse_args()
-    run(
-        tuple(args.batches),
-        repeats=args.repeats,
-        seed=args.seed,
-        threads=tuple(args.threads),
-        robot=args.robot,
-    )
+    p.add_argument("--robot", default="panda_arm", help="panda_arm (7 DoF) or panda (9 DoF)")
+    return page.add_option(p)
+
+
+def main(argv=None) -> list[dict]:
+    args = parser().parse_args(argv)
+    with page.recording(
+        "bench_regressor", "bench_regressor", args.write_docs, argv, markdown=summary_markdown
+    ):
+        return run(
+            tuple(args.batches),
+            repeats=args.repeats,
+            seed=args.seed,
+            threads=tuple(args.threads),
+            robot=args.robot,
+        )
+
+
+if __name__ == "__main__":
+    main()

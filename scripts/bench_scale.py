@@ -21,6 +21,7 @@ saves a log-log plot. Usage::
 
     python scripts/bench_scale.py            # 10^4 .. 10^7 rows, a few minutes
     python scripts/bench_scale.py --quick    # smoke run, 10^4 and 3 10^4 rows
+    python scripts/bench_scale.py --write-docs   # also into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import subprocess
 import sys
 import time
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -226,34 +228,42 @@ def _plot(rows: list[dict], path: str) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> None:
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="smoke run: 1e4 and 3e4 rows")
     p.add_argument("--ns", type=float, nargs="+", help="numbers of rows (default 1e4 .. 1e7)")
-    p.add_argument("--d", type=int, default=D)
-    p.add_argument("--chunk", type=int, default=65_536)
-    p.add_argument("--lstsq-cap-gb", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--d", type=int, default=D, help="columns")
+    p.add_argument("--chunk", type=int, default=65_536, help="rows per generated chunk")
+    p.add_argument(
+        "--lstsq-cap-gb", type=float, default=1.0, help="skip lstsq above this matrix size, GB"
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the data")
     p.add_argument("--threads", type=int, default=1, help="BLAS threads of every method")
     p.add_argument(
         "--plot", help="PNG path (default docs/img/scale.png; none with --quick unless given)"
     )
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--n", type=int, help=argparse.SUPPRESS)
-    a = p.parse_args(argv)
+    return page.add_option(p)
+
+
+def main(argv=None) -> list[dict] | None:
+    a = parser().parse_args(argv)
     if a.worker:
         print(json.dumps(measure(a.worker, a.n, d=a.d, chunk=a.chunk, seed=a.seed)))
-        return
+        return None
     ns = QUICK_NS if a.quick else tuple(int(v) for v in a.ns) if a.ns else FULL_NS
-    run(
-        ns,
-        d=a.d,
-        chunk=a.chunk,
-        lstsq_cap_gb=a.lstsq_cap_gb,
-        seed=a.seed,
-        threads=a.threads,
-        plot=a.plot if a.plot is not None else (None if a.quick else "docs/img/scale.png"),
-    )
+    with page.recording("bench_scale", "bench_scale", a.write_docs, argv, smoke=a.quick):
+        return run(
+            ns,
+            d=a.d,
+            chunk=a.chunk,
+            lstsq_cap_gb=a.lstsq_cap_gb,
+            seed=a.seed,
+            threads=a.threads,
+            plot=a.plot if a.plot is not None else (None if a.quick else "docs/img/scale.png"),
+        )
 
 
 if __name__ == "__main__":

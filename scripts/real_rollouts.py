@@ -11,6 +11,7 @@ The commands these calls stand for:
     torchjfa evaluate result/model.npz HELD_OUT_LOG [--drive-gains ...] --rollouts --out evaluation/
 
     python scripts/real_rollouts.py [--smoke]
+    python scripts/real_rollouts.py --write-docs   # also into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import torchjfa
 from torchjfa.identification import IdentificationWarning, evaluate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _benchmarks_page as page  # noqa: E402
 import real_panda  # noqa: E402
 import real_ur10e  # noqa: E402
 
@@ -101,11 +103,17 @@ def run(*, smoke: bool = False, out=sys.stdout) -> list[dict]:
     return rows
 
 
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--smoke", action="store_true", help="a few logs / seconds only")
+    return page.add_option(p)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--smoke", action="store_true", help="a few logs / seconds only")
-    args = parser.parse_args(argv)
-    run(smoke=args.smoke)
+    args = parser().parse_args(argv)
+    with page.recording("real_rollouts", "real_rollouts", args.write_docs, argv, smoke=args.smoke):
+        run(smoke=args.smoke, out=sys.stdout)
     return 0
 
 

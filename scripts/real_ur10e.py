@@ -4,6 +4,7 @@ least squares.
     python scripts/real_ur10e.py            # all 15 identification logs without payload
     python scripts/real_ur10e.py --smoke    # three logs, a check
     python scripts/real_ur10e.py --payload  # the known payloads of the loaded runs
+    python scripts/real_ur10e.py --write-docs   # also into docs/benchmarks.md
 
 The logs are `../shared/data/ur10e_mamedov2020` (its README: a UR10e in velocity control, about
 94 Hz with uneven steps, measured q and qd, motor currents ``i_<joint>`` in A, the drive gains
@@ -48,6 +49,7 @@ import time
 import warnings
 from pathlib import Path
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 from scipy import signal
@@ -276,16 +278,23 @@ def payloads(folder: Path = DATA, *, out=sys.stdout) -> list[dict] | None:
     return rows
 
 
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--data", default=str(DATA), help="the logs' folder")
+    p.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
+    p.add_argument("--payload", action="store_true", help="the known payloads instead")
+    return page.add_option(p)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(DATA), help="the logs' folder")
-    parser.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
-    parser.add_argument("--payload", action="store_true", help="the known payloads instead")
-    args = parser.parse_args(argv)
-    if args.payload:
-        payloads(Path(args.data))
-    else:
-        run(Path(args.data), smoke=args.smoke)
+    args = parser().parse_args(argv)
+    name = "real_ur10e-payload" if args.payload else "real_ur10e"
+    with page.recording(name, "real_ur10e", args.write_docs, argv, smoke=args.smoke):
+        if args.payload:
+            payloads(Path(args.data), out=sys.stdout)
+        else:
+            run(Path(args.data), smoke=args.smoke, out=sys.stdout)
     return 0
 
 

@@ -25,11 +25,12 @@ mean over seeds:
   (`IdentificationReport.base`) of |unconstrained estimate - truth| / the physical scale of the
   parameter's kind (`BaseParameters.scales`), the truth mapped the same way.
 
-The issue's claims: Bayesian JFA's held-out error below OLS's, and its parameter error at least
+The claims judged: Bayesian JFA's held-out error below OLS's, and its parameter error at least
 20 % below OLS's; judged on the geometric mean over seeds of the per-seed ratios to OLS.
 
     python scripts/sim_bjfa_vs_ols.py             # head and arm, seeds 0, 1, 2 (--seeds 10: 13 min)
     python scripts/sim_bjfa_vs_ols.py --smoke     # head, one seed, short logs (seconds)
+    python scripts/sim_bjfa_vs_ols.py --seeds 10 --write-docs   # also into docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import math
 import time
 import warnings
 
+import _benchmarks_page as page
 import torch
 
 import torchjfa
@@ -137,7 +139,7 @@ def run(robots=("head", "arm"), seeds=(0, 1, 2), *, n_samples=8000, n_test=4000,
 
 
 def verdicts(per_seed: dict) -> dict:
-    """Means over seeds and the issue's two claims, per Bayesian run.
+    """Means over seeds and the two claims, per Bayesian run.
 
     The claims are judged on the geometric mean over seeds of the per-seed ratios to OLS (each
     seed weighs the same; an arithmetic mean of the errors is carried by the seed whose log
@@ -168,14 +170,27 @@ def verdicts(per_seed: dict) -> dict:
     return {"mean": mean, "claims": claims}
 
 
-def main(argv=None) -> dict:
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robots", default="head,arm")
-    ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--samples", type=int, default=8000)
+    ap.add_argument("--robots", default="head,arm", help="comma-separated: head, arm")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
+    ap.add_argument("--samples", type=int, default=8000, help="samples per log")
     ap.add_argument("--period", type=float, default=60.0, help="excitation period, s")
     ap.add_argument("--smoke", action="store_true", help="head, one seed, 1500 samples")
-    args = ap.parse_args(argv)
+    return page.add_option(ap)
+
+
+def main(argv=None) -> dict:
+    args = parser().parse_args(argv)
+    with page.recording(
+        "sim_bjfa_vs_ols", "sim_bjfa_vs_ols", args.write_docs, argv, smoke=args.smoke
+    ):
+        return _main(args)
+
+
+def _main(args) -> dict:
+    """Run and print what ``args`` ask for."""
     robots = tuple(args.robots.split(","))
     n_test = 4000
     if args.smoke:

@@ -5,6 +5,7 @@ found by `torchjfa.identify_payload` with an identified (not the true) robot mod
     python scripts/sim_payload.py --smoke     # one period, one payload per robot, one seed
     python scripts/sim_payload.py --robots panda --seeds 5
     python scripts/sim_payload.py --seeds 1 --noise-scale 0   # what the noise costs
+    python scripts/sim_payload.py --write-docs   # also into docs/benchmarks.md
 
 Per robot (the shipped ``panda_arm``, payload on ``panda_link8``; example-robot-data's
 ``ur_description/urdf/ur5_robot.urdf``, payload on ``ee_link``, skipped with a message when
@@ -59,6 +60,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+import _benchmarks_page as page
 import numpy as np
 
 import torchjfa
@@ -480,7 +482,8 @@ def run(
     return {"robots": results, "verdicts": per_robot, "overall": overall}
 
 
-def main(argv=None) -> dict:
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", default="panda,ur5", help="comma-separated: panda, ur5")
     ap.add_argument("--seeds", type=int, default=3, help="noise seeds 0..N-1")
@@ -502,6 +505,11 @@ def main(argv=None) -> dict:
         action="store_true",
         help="one seed, one period, one payload per robot, a quick excitation",
     )
+    return page.add_option(ap)
+
+
+def main(argv=None) -> dict:
+    ap = parser()
     args = ap.parse_args(argv)
     robots = tuple(r for r in args.robots.split(",") if r)
     unknown = sorted(set(robots) - set(ROBOTS))
@@ -509,14 +517,16 @@ def main(argv=None) -> dict:
         ap.error(f"unknown robots {unknown}; choose from {sorted(ROBOTS)}")
     if args.smoke:
         args.seeds, args.seconds = 1, PERIOD
-    return run(
-        robots,
-        tuple(range(args.seeds)),
-        seconds=args.seconds,
-        out=args.out,
-        smoke=args.smoke,
-        noise_scale=args.noise_scale,
-    )
+    with page.recording("sim_payload", "sim_payload", args.write_docs, argv, smoke=args.smoke):
+        return run(
+            robots,
+            tuple(range(args.seeds)),
+            seconds=args.seconds,
+            out=args.out,
+            smoke=args.smoke,
+            noise_scale=args.noise_scale,
+            stream=sys.stdout,
+        )
 
 
 if __name__ == "__main__":

@@ -93,7 +93,7 @@ def stream_moments(
             joint's rows alone (model joint order).
         compiled: which path forms the regressor (`RigidBodyModel.regressor`): None (the
             default) the C++ kernel generated for the robot where a C++ compiler is there
-            (several times faster; the first call compiles it, about 2 s for 7 joints), the
+            (several times faster; the first call for a robot compiles it, once), the
             torch path otherwise; True insists on the kernel, False takes the torch path.
 
     Returns:

@@ -168,7 +168,8 @@ def process_group(
     Args:
         backend: ``"gloo"`` (CPU; works everywhere) or ``"nccl"`` (CUDA tensors).
         init_method: e.g. ``"tcp://127.0.0.1:29500"``; default ``"env://"``.
-        rank, world_size: needed with a ``tcp://`` or ``file://`` ``init_method``.
+        rank: needed with a ``tcp://`` or ``file://`` ``init_method``.
+        world_size: needed with a ``tcp://`` or ``file://`` ``init_method``.
         timeout_s: how long a collective may wait for the other processes before it fails,
             seconds (so a crashed peer does not hang the others forever).
 

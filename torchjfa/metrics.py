@@ -81,7 +81,8 @@ def rms(prediction: torch.Tensor, target: torch.Tensor, *, per_joint: bool = Fal
     """Root mean squared error, in the target's units (N m for revolute joints' torques).
 
     Args:
-        prediction, target: as for `nmse`.
+        prediction: as for `nmse`.
+        target: as for `nmse`.
         per_joint: return ``(n_dof,)`` values ``sqrt(mean_i (pred_ij - target_ij)^2)``
             instead of the RMS over every entry (the root of the mean over joints of their
             mean squared errors).

@@ -130,8 +130,8 @@ class Moments:
         xtx = torch.zeros(d, d, **kw)
         xt_y1 = torch.zeros(d, 2, **kw)
         # in blocks of rows that stay in cache between the two products (and the float64 copy
-        # and the weighting of a block); measured on 500,000 x 77: 1.26x the bare X^T X pass
-        # instead of 1.52x on one thread, 1.35x either way on two
+        # and the weighting of a block): closer to the cost of the bare X^T X pass than two
+        # passes over the whole data
         for a in range(0, X.shape[0], _BLOCK_ROWS):
             Xb = X[a : a + _BLOCK_ROWS].to(**kw)
             Xwb = Xb if weights is None else Xb * ones[a : a + _BLOCK_ROWS, None]

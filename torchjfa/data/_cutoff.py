@@ -1,8 +1,8 @@
 """The low-pass cut-off chosen from the data: held-out torque prediction over a grid.
 
 The cut-off of `prepare`'s zero-phase filter decides more of a real robot's identification
-than the estimator does (on the real Panda log, 8 Hz against 20 Hz more than halves the
-held-out error). Too low, and the filter removes real dynamics from the positions and the
+than the estimator does (on a real arm's log the cut-off can change the held-out error by a
+factor of two). Too low, and the filter removes real dynamics from the positions and the
 torques alike; too high, and the accelerations differentiated twice from the measurements
 drown in noise. `choose_cutoff` measures it:
 
@@ -88,7 +88,7 @@ class CutoffChoice:
     coulomb_scores: tuple[float, ...] = ()
 
 
-@single_thread()  # small matrices: threads only wait on a busy machine
+@single_thread()  # small matrices: threads only wait on each other
 def _fit(Y: torch.Tensor, tau: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Least squares ``tau ~ Y theta`` with joint weights ``w``, from the moments (the normal
     equations of the column-scaled problem, solved by a pseudo-inverse: minimum norm along the
@@ -125,7 +125,8 @@ def choose_cutoff(
             log's joints in its order (`JointLog.reorder`).
         log: the raw training log (never the part held out for validation), q and tau.
         grid_hz: the cut-offs to try, Hz (default `cutoff_grid()`: 2-30 Hz, 8 values).
-        method, velocity: as for `prepare`.
+        method: as for `prepare`.
+        velocity: as for `prepare`.
         n_folds: contiguous blocks, each held out once (at least 2).
         reach_s: samples within this many seconds of a held-out block are left out of its fit,
             and as many at the log's ends (default ``2 / min(grid_hz)``).
@@ -212,7 +213,10 @@ def armature_helps(
         model: the robot without the armature term.
         log: the raw training log, as for `choose_cutoff`.
         cutoff_hz: the cut-off the identification prepares with, Hz.
-        method, velocity, n_folds, compiled: as for `choose_cutoff`.
+        method: as for `choose_cutoff`.
+        velocity: as for `choose_cutoff`.
+        n_folds: as for `choose_cutoff`.
+        compiled: as for `choose_cutoff`.
 
     Returns:
         ``(helps, how)``: whether to add the term, and one line for the report.
@@ -344,7 +348,7 @@ def _score(model, folds: _Folds, cutoff: float, widths: list, compiled):
         m = model if v is None else model.with_coulomb_velocity(v)
         Y = m.regressor(d.q, d.qd, d.qdd, compiled=compiled)
         pred = torch.empty_like(raw)
-        with single_thread():  # small solves: threads only wait on a busy machine
+        with single_thread():  # small solves: threads only wait on each other
             for a, b in zip(bounds, bounds[1:], strict=False):
                 fit = (idx < a - gap) | (idx >= b + gap)
                 pred[a:b] = Y[a:b] @ _fit(Y[fit], d.tau[fit], w)

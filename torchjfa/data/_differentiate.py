@@ -16,7 +16,7 @@ methods:
   which differentiate the fitted polynomial; exact for polynomials up to ``polyorder``,
   including at the ends.
 
-The default cut-off, 20 Hz, keeps the 0-5 Hz motion of the seed paper's sinusoidal excitation
+The default cut-off, 20 Hz, keeps the 0-5 Hz motion of the paper's sinusoidal excitation
 (and of `torchjfa.sim`) untouched at 420-480 Hz sampling while removing most white sensor
 noise (the noise variance of a signal falls by about ``2 * cutoff / rate``).
 """

@@ -5,7 +5,7 @@
 1. `resample`: logs from real robots have jitter and gaps (dropped packets, dropped NaN
    rows); the filter and the differences need uniform time, so an uneven log is interpolated
    (cubic splines) onto a uniform grid at its median rate.
-2. `detect_period`: a periodic excitation (the seed paper's sums of sinusoids) repeats; its
+2. `detect_period`: a periodic excitation (the paper's sums of sinusoids) repeats; its
    period, found from the autocorrelation of the positions, lets the noise be measured from
    the spread between periods (`torchjfa.data.regressor_noise`). The log is resampled so that
    a period is a whole number of samples.
@@ -89,8 +89,9 @@ def detect_period(
     Args:
         x: ``(n_samples, n_dof)`` (or ``(n_samples,)``) uniformly sampled signal, e.g. positions.
         rate_hz: its sampling rate, Hz.
-        min_period_s, max_period_s: the range searched (default: from the first decorrelation
-            to half the log, so at least two periods are in it).
+        min_period_s: the shortest period searched (default: the first decorrelation).
+        max_period_s: the longest period searched (default: half the log, so at least two
+            periods are in it).
         min_correlation: the peak's average correlation needed to call the signal periodic.
 
     Returns:

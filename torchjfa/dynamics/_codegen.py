@@ -16,11 +16,10 @@ whole output rows (structural zeros included) and copied out row by row, so the 
 output is written once, contiguously. Sines and cosines come from torch (``torch.sin``/``cos``,
 the same values as the eager path). `torchjfa.dynamics._kernel` compiles, caches and calls it.
 
-Why not ``torch.compile``: inductor (torch 2.13, CPU) on the same folded program, measured on
-the Panda arm during development, split it into hundreds of loops (one per zero column of the
-stacked output, groups of at most ``max_fusion_size`` nodes), vectorised only a batch-last
-output (the batch-first one went scalar, 2.4x eager at best), needed 60 to 200 s to compile, and
-with the transpose into the ``(B, n, n_params)`` layout reached about Pinocchio's rate, not 2x.
+Why not ``torch.compile``: inductor (CPU) splits the same folded program into hundreds of loops
+(one per zero column of the stacked output, groups of at most ``max_fusion_size`` nodes),
+vectorises only a batch-last output (a batch-first one goes scalar), takes minutes to compile,
+and with the transpose into the ``(B, n, n_params)`` layout reaches about Pinocchio's rate.
 """
 
 from __future__ import annotations

@@ -123,7 +123,8 @@ def bias_forces(model, q, qd, theta) -> torch.Tensor:
 
     Args:
         model: the `RigidBodyModel`.
-        q, qd: ``(*batch, n_dof)`` joint positions and velocities.
+        q: ``(*batch, n_dof)`` joint positions.
+        qd: ``(*batch, n_dof)`` joint velocities.
         theta: ``(n_params,)``; cast to q's dtype and device.
     """
     q, qd = check_state(q, qd, joint_names=model.joint_names, names=("q", "qd"))
@@ -141,7 +142,8 @@ def forward_dynamics(model, q, qd, tau, theta) -> torch.Tensor:
 
     Args:
         model: the `RigidBodyModel`.
-        q, qd: ``(*batch, n_dof)`` joint positions (rad or m) and velocities (rad/s or m/s).
+        q: ``(*batch, n_dof)`` joint positions (rad or m).
+        qd: ``(*batch, n_dof)`` joint velocities (rad/s or m/s).
         tau: ``(*batch, n_dof)`` joint torques (N m) or forces (N).
         theta: ``(n_params,)``; cast to the inputs' dtype and device.
 
@@ -190,7 +192,8 @@ def rollout(
     Args:
         dynamics: an object with ``forward_dynamics(q, qd, tau) -> qdd`` (an `InverseDynamics`)
             or a callable ``(q, qd, tau) -> qdd``.
-        q0, qd0: ``(*batch, n_dof)`` initial joint positions and velocities.
+        q0: ``(*batch, n_dof)`` initial joint positions.
+        qd0: ``(*batch, n_dof)`` initial joint velocities.
         tau: ``(T, *batch, n_dof)`` torques, N m or N; ``tau[k]`` acts from step k to k + 1.
         dt: the step, s (> 0).
         method: ``"semi-implicit"`` or ``"rk4"``.

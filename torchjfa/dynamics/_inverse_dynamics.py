@@ -180,7 +180,9 @@ class InverseDynamics(nn.Module):
         """Joint torques (N m) or forces (N).
 
         Args:
-            q, qd, qdd: ``(*batch, n_dof)`` joint positions, velocities, accelerations.
+            q: ``(*batch, n_dof)`` joint positions.
+            qd: ``(*batch, n_dof)`` joint velocities.
+            qdd: ``(*batch, n_dof)`` joint accelerations.
 
         Returns:
             ``(*batch, n_dof)`` in the dtype of q (theta is cast to it) and theta's device.

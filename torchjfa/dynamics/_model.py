@@ -67,7 +67,7 @@ class RigidBodyModel(FrameKinematics):
         coulomb_velocity: the Coulomb term's smoothing velocity ``v_c``, rad/s (m/s for
             prismatic joints): its regressor column is ``tanh(qd / v_c)``, or ``sign(qd)`` for
             ``v_c = 0`` (the default). Real joints' dry friction changes sign over a band of
-            velocities (on the real Franka Panda log of docs/real-robot.md about 0.05 rad/s),
+            velocities (a few hundredths of a rad/s on a geared arm such as the Panda),
             which ``sign`` draws as a jump; `with_coulomb_velocity` gives the same model with
             another ``v_c``, `torchjfa.data.choose_cutoff` chooses it from a log.
         transmission: the `Transmission` whose motors carry the joint terms of the joints it
@@ -412,7 +412,10 @@ class RigidBodyModel(FrameKinematics):
         """Stream the stacked regression rows, ``chunk_size`` samples at a time.
 
         Args:
-            q, qd, qdd, tau: ``(*batch, n_dof)`` (tau in N m or N); the batch is flattened.
+            q: ``(*batch, n_dof)`` positions; the batch is flattened.
+            qd: ``(*batch, n_dof)`` velocities.
+            qdd: ``(*batch, n_dof)`` accelerations.
+            tau: ``(*batch, n_dof)`` torques, N m (N).
             chunk_size: samples per chunk.
             compiled: compute each chunk with the compiled kernel (see `regressor`).
 
@@ -443,7 +446,10 @@ class RigidBodyModel(FrameKinematics):
         """`Moments` of ``tau ~ Y theta`` over all samples, never holding the whole Y.
 
         Args:
-            q, qd, qdd, tau: ``(*batch, n_dof)``.
+            q: ``(*batch, n_dof)`` positions.
+            qd: ``(*batch, n_dof)`` velocities.
+            qdd: ``(*batch, n_dof)`` accelerations.
+            tau: ``(*batch, n_dof)`` torques.
             chunk_size: samples per chunk (memory is O(chunk_size * n_dof * n_params)).
             progress: show a progress bar.
             compiled: compute the regressor with the compiled kernel (see `regressor`).

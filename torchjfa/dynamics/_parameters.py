@@ -6,7 +6,7 @@ moves, in Pinocchio's order, about the body frame's origin and expressed in the 
     [m, m*cx, m*cy, m*cz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
 
 then that joint's joint terms ("friction" in the code's names), in the order of `FRICTION_KINDS`
-that are selected: viscous friction ``fv qd`` (the default, the seed paper's 11th parameter),
+that are selected: viscous friction ``fv qd`` (the default, the paper's 11th parameter),
 Coulomb friction ``fc sign(qd)`` (``fc tanh(qd / v_c)`` with
 `RigidBodyModel.coulomb_velocity` ``v_c`` > 0), a constant offset ``fo`` and the armature ``ia qdd`` (the
 motor's reflected rotor inertia, MuJoCo's ``armature``). Units: kg, kg m, kg m^2, then N m s/rad,

@@ -3,7 +3,7 @@
 All share one scikit-learn-style interface (`LinearEstimator`): keyword-only hyper-parameters,
 ``fit(X, y)`` / ``fit_moments(moments)`` returning ``self``, ``coef_``, ``intercept_`` and
 ``predict(X)``. Use `BayesianJFA` when inputs are noisy (robot identification); the others are
-the baselines of the seed paper.
+the baselines the paper compares it with.
 
 `make` builds one by the name the command line uses (``"bayes-jfa"``, ``"ols"``, ...;
 `available` lists them) and `register` adds a third-party estimator under a new name; the

@@ -10,10 +10,10 @@ also prunes irrelevant and redundant inputs (automatic relevance determination).
 Both are fitted from the sufficient statistics ``N, X^T X, X^T y, y^T y`` alone, as batched
 tensor ops: `JFA` at the closed-form maximum of its likelihood, `BayesianJFA` by Newton steps on
 its variational bound with prune moves, which converge in tens to hundreds of iterations where
-the plain EM (``method="em"``, kept as the reference) needs thousands. ``docs/bayesian-jfa.md``
+the plain EM (``method="em"``, kept as the reference) needs thousands. ``docs/theory.md``
 derives the model, the bound, the updates and the optimiser; the code cites its equations.
 
-Known limit (``docs/bayesian-jfa.md``, "What the data do not decide"): the de-noised slope
+Known limit (``docs/theory.md``, "What the data do not decide"): the de-noised slope
 ``w_z / w_x`` is not identified from second moments; the prior (or the starting point, for
 `JFA`) picks it. Pass ``input_noise`` (a known or estimated noise variance per input, e.g. from
 repeated excitation periods) to hold ``psi_x`` fixed and make it identified.
@@ -118,7 +118,7 @@ class _JFABase(LinearEstimator):
         mostly per-operation overhead. Problem by problem the result is `fit_moments`'s up to
         round-off where the bound has one optimum (small and well-conditioned problems;
         maximum likelihood; plain EM for a fixed number of sweeps). Where it has several (large
-        problems with redundant inputs, ``docs/bayesian-jfa.md``, "Batches and optima"), a
+        problems with redundant inputs, ``docs/theory.md``, "Batches and optima"), a
         rounding difference between a batched and a single product can send a problem to
         another optimum, of a bound a few nats higher or lower, and ``coef_`` differs there
         (``scripts/bench_estimators.py`` prints how many of its 64 problems agree). Problems
@@ -321,7 +321,7 @@ class JFA(_JFABase):
             along ``psi_y + sum psi_z``).
         method: ``"closed_form"`` (default): the maximum of the likelihood (each input's
             variance ``diag(X^T X) / N``, the predictor ``k`` = OLS, the residual variance
-            ``RSS / N``; ``docs/bayesian-jfa.md``, eq. 19), at the point of the flat ridge of
+            ``RSS / N``; ``docs/theory.md``, eq. 19), at the point of the flat ridge of
             equally likely states where psi_x is the given noise or half of each column's
             variance; plain EM where the floors or the given noise make that optimum
             unreachable. ``"em"``: plain EM from the initialisation of eq. 10 (the ridge point
@@ -338,7 +338,9 @@ class JFA(_JFABase):
         weights_x_, weights_z_: ``(d,)`` the loadings in caller's units (t has unit variance).
         lower_bound_: ``(n_iter_,)`` the log-likelihood of (X, y) after each iteration, nats
             (closed form: after the first EM sweep from the initialisation, and at the optimum).
-        n_iter_, converged_, stop_reason_ (``"bound"``, ``"coef"`` or ``"max_iter"``).
+        n_iter_: iterations run.
+        converged_: whether a tolerance stopped it.
+        stop_reason_: ``"bound"``, ``"coef"`` or ``"max_iter"``.
     """
 
     _methods = ("closed_form", "em")
@@ -376,7 +378,7 @@ class BayesianJFA(_JFABase):
     ``ard="output"``, it governs ``w_zm`` alone): an input that does not explain the output is
     pruned (``alpha_m`` large, both weights near 0), which regularises
     ill-conditioned, redundant and irrelevant inputs. Fitted from `Moments` only, by Newton
-    steps with prune moves on the variational bound (``docs/bayesian-jfa.md``, eqs. 12-18).
+    steps with prune moves on the variational bound (``docs/theory.md``, eqs. 12-18).
 
     Args:
         max_iter: iteration cap (one iteration = one Newton or prune trial, or one plain EM
@@ -396,8 +398,9 @@ class BayesianJFA(_JFABase):
             so its answer moves with the iteration count and the chunking of the data; the
             Newton optimiser's converges quadratically and agrees whatever the chunking, to
             round-off, unless round-off early in the path led to another optimum of the bound
-            (``docs/bayesian-jfa.md``, "Batches and optima").
-        a0, b0: shape and rate of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
+            (``docs/theory.md``, "Batches and optima").
+        a0: shape of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
+        b0: rate of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
             caller's units (squared units of each column), e.g. half the variance of the
             difference between two repeated excitation periods. ``psi_x`` is then held fixed
@@ -411,7 +414,7 @@ class BayesianJFA(_JFABase):
             ``w_xm^2`` to ``var(x_m) - psi_xm``, so a shared alpha_m cannot grow for an input
             that is measured well but does not matter for y, and such inputs are not pruned;
             with alpha_m on ``w_zm`` alone they are. Measured on the paper's Fig. 2 protocol
-            at input SNR 2 (``docs/results.md``): clean-test nMSE 0.08 instead of 0.11 with
+            at input SNR 2 (``docs/paper.md``): clean-test nMSE 0.08 instead of 0.11 with
             90 irrelevant inputs, and lower in every scenario. Without ``input_noise`` it is allowed but
             untested against the paper.
         noise_floor: lower bound of psi_x and psi_z as a fraction of the variance of x_m / y.
@@ -428,7 +431,7 @@ class BayesianJFA(_JFABase):
 
     Attributes:
         coef_: ``(d,)`` the noiseless-input estimate of the paper's eq. (4), ``<w_z><w_x> /
-            <w_x^2>`` (``docs/bayesian-jfa.md``, eq. 11), for
+            <w_x^2>`` (``docs/theory.md``, eq. 11), for
             system identification; 0 for pruned and for constant columns. It is close to
             ``coef_noisy_ / (1 - noise_x_ / var(x))``: the predictor de-noised column by column
             by the reliability the model attributes to each column. Without ``input_noise``

@@ -1,6 +1,6 @@
 """Plain EM for (Bayesian) JFA from moments, and maximum-likelihood JFA's closed-form optimum.
 
-`run_em` is the reference: the sweeps of ``docs/bayesian-jfa.md`` (eqs. 3-8), each raising the
+`run_em` is the reference: the sweeps of ``docs/theory.md`` (eqs. 3-8), each raising the
 bound (eq. 9), at a rate of ``1 - O(1/N)`` along the unidentified directions, so that it needs
 thousands of sweeps; ``_jfa_newton.py`` has the optimiser `BayesianJFA` uses by default.
 `ml_closed_form` is `JFA`'s default (eq. 19). Both take any leading batch shape of problems.

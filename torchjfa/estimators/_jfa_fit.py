@@ -1,7 +1,7 @@
 """Fitting (Bayesian) JFA from standardised moments: `fit` picks the method, `run_newton` is
 Bayesian JFA's default optimiser.
 
-- ``"em"``: plain EM (``_jfa_em.run_em``), the reference of ``docs/bayesian-jfa.md``.
+- ``"em"``: plain EM (``_jfa_em.run_em``), the reference of ``docs/theory.md``.
 - ``"newton"`` (Bayesian): `run_newton`, damped Newton steps on the collapsed bound
   (``_jfa_newton.py``) and prune moves (``_jfa_prune.py``), every move kept only if the bound
   rises (eq. 16).
@@ -70,7 +70,7 @@ class _Run(NamedTuple):
 
 def run_newton(S: Stats, st: State, cfg: Settings, *, max_iter, tol, coef_tol, bar=None):
     """The Newton optimiser with prune moves from ``st`` (eq. 16), on one thread (its kernels
-    are small: on a busy machine, threads wait on each other).
+    are small: threads would only wait on each other).
 
     An iteration is one damped Newton trial or one prune trial; the bound after it is recorded
     (the first record is the bound at ``st``) and never falls. Newton has converged when a kept

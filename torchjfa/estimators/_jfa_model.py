@@ -3,7 +3,7 @@
 Pure tensor functions behind `torchjfa.estimators.JFA` and `BayesianJFA`, for any leading batch
 shape of problems. Every quantity is in standardised units (each column of ``X`` and ``y``
 scaled to unit variance); dtype and device come from the moments. The equation numbers are
-those of ``docs/bayesian-jfa.md``, which derives everything here. ``_jfa_em.py`` (plain EM,
+those of ``docs/theory.md``, which derives everything here. ``_jfa_em.py`` (plain EM,
 maximum likelihood's closed form) and ``_jfa_newton.py`` (the Newton optimiser) drive these
 functions; fit through them.
 """

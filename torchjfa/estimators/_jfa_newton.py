@@ -1,6 +1,6 @@
 """Bayesian JFA's optimiser: damped Newton steps on the collapsed bound, with prune moves.
 
-The bound with Q(z, t) and Q(alpha) optimised out (``docs/bayesian-jfa.md``, eq. 12) is a
+The bound with Q(z, t) and Q(alpha) optimised out (``docs/theory.md``, eq. 12) is a
 smooth function of each input's ``<w_z>, <w_x>, log V_z, log V_x, log psi_z`` and (unless
 fixed) ``log psi_x``, and of ``log psi_y``: the *coordinates*, ``(B, P)`` with ``P = r d + 1``.
 It is a sum of each input's own terms plus a function of the predictor ``k`` and of ``c``
@@ -25,7 +25,7 @@ _LM_START, _LM_FLOOR, _LM_MAX = 1e-3, 1e-12, 1e12  # damping, relative to |diag 
 _LM_POLISH = 1e-9  # a convergence with more damping than this is re-checked at the floor
 _ROUNDOFF = 64 * 2.0**-52  # relative round-off of the bound (a sum of O(d) terms of size O(N))
 # a prune trial also follows a kept Newton step that gained at most _PRUNE_GAIN nats a sample,
-# at most once in _PRUNE_EVERY Newton iterations (docs/bayesian-jfa.md, eq. 16)
+# at most once in _PRUNE_EVERY Newton iterations (docs/theory.md, eq. 16)
 _PRUNE_GAIN = 1e-3
 _PRUNE_EVERY = 3
 

@@ -1,4 +1,4 @@
-"""The prune move of Bayesian JFA's optimiser (``docs/bayesian-jfa.md``, eqs. 17-18).
+"""The prune move of Bayesian JFA's optimiser (``docs/theory.md``, eqs. 17-18).
 
 An input that does not help explain ``y`` heads for the prior's zero (``<w_z> = 0``, its
 relevance precision unbounded), which Newton on the log-variances approaches only

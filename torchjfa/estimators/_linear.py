@@ -28,7 +28,7 @@ __all__ = ["OLS", "Ridge", "TLS", "min_norm_solve"]
 ROUNDOFF_COLUMN = 1.5e-8
 
 
-@single_thread()  # small matrices: threads only wait on a busy machine
+@single_thread()  # small matrices: threads only wait on each other
 def min_norm_solve(
     sxx: torch.Tensor, sxy: torch.Tensor, *, rcond: float = 1e-12
 ) -> tuple[torch.Tensor, int]:

@@ -78,7 +78,8 @@ def check_limits(
     One period is checked (the trajectory is periodic), at ``rate * refine`` Hz.
 
     Args:
-        model, limits: the robot and its `Limits`.
+        model: the robot.
+        limits: its `Limits`.
         trajectory: a `FourierTrajectory` or `torchjfa.sim.SinusoidTrajectory` in the model's
             joint order.
         rate: the output (sampling) rate, Hz.

@@ -37,7 +37,8 @@ def constrain_coefficients(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tens
     """Project free coefficients onto those of a trajectory at rest at t = 0.
 
     Args:
-        a, b: ``(..., n_dof, H)`` free coefficients, rad/s (H >= 2).
+        a: ``(..., n_dof, H)`` free sine coefficients, rad/s (H >= 2).
+        b: ``(..., n_dof, H)`` free cosine coefficients, rad/s.
 
     Returns:
         ``(a, b)`` of the same shape with ``sum_k a_jk = 0`` and ``sum_k k b_jk = 0`` for every
@@ -58,7 +59,8 @@ def fourier_states(
     Args:
         t: ``(n,)`` s.
         posture: ``(n_dof,)`` q0, rad (or m).
-        a, b: ``(n_dof, H)`` coefficients (as given; see `constrain_coefficients`).
+        a: ``(n_dof, H)`` sine coefficients (as given; see `constrain_coefficients`).
+        b: ``(n_dof, H)`` cosine coefficients.
         base_frequency: f0, Hz.
 
     Returns:

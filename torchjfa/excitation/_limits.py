@@ -215,12 +215,13 @@ def limits_from_model(
         velocity_margin: fraction of the description's velocity limits kept free, in [0, 1)
             (a velocity the user gives is used as it is).
         position: ``(n_dof, 2)`` ranges replacing the description's (before the margin).
-        velocity, acceleration, torque: rad/s, rad/s^2, N m (m/s, m/s^2, N for prismatic
-            joints): a number (every joint), ``n_dof`` numbers or a mapping joint -> number
-            (NaN or a missing joint keeps the default); inf for none. Defaults: the
-            description's velocity less ``velocity_margin``; that velocity reached from rest
-            in `DEFAULT_ACCELERATION_TIME` (none where there is no velocity limit); the
-            description's effort.
+        velocity: rad/s (m/s for prismatic joints): a number (every joint), ``n_dof`` numbers
+            or a mapping joint -> number (NaN or a missing joint keeps the default); inf for
+            none. Default: the description's velocity less ``velocity_margin``.
+        acceleration: rad/s^2 (m/s^2), given as ``velocity`` is. Default: the velocity limit
+            reached from rest in `DEFAULT_ACCELERATION_TIME` (none where there is no
+            velocity limit).
+        torque: N m (N), given as ``velocity`` is. Default: the description's effort.
         workspace: `WorkspaceBox` es.
         floor: height in the root frame, m, of the plane the arm is mounted on (0: the base's
             plane, z = 0); no part of the arm may come within ``clearance`` of it. None: none.
@@ -313,8 +314,11 @@ def constraint_violations(
     """Normalised excess over each limit at each sample (> 0: violated); differentiable.
 
     Args:
-        model, limits: the robot and its `Limits`.
-        q, qd, qdd: ``(n, n_dof)`` states.
+        model: the robot.
+        limits: its `Limits`.
+        q: ``(n, n_dof)`` positions.
+        qd: ``(n, n_dof)`` velocities.
+        qdd: ``(n, n_dof)`` accelerations.
         theta: ``(n_params,)`` the nominal parameters for the torques (default the
             description's, ``model.nominal_theta``).
         tau: ``(n, n_dof)`` the nominal torques, N m, when already computed (else

@@ -135,7 +135,14 @@ def simex_bias(
     covers the uncorrected estimate less often than nominal on the head.
 
     Args:
-        model, data, noise, options, n_draws, seed, signal, progress: as for `signal_bootstrap`.
+        model: as for `signal_bootstrap`.
+        data: as for `signal_bootstrap`.
+        noise: as for `signal_bootstrap`.
+        options: as for `signal_bootstrap`.
+        n_draws: as for `signal_bootstrap`.
+        seed: as for `signal_bootstrap`.
+        signal: as for `signal_bootstrap`.
+        progress: as for `signal_bootstrap`.
         theta_hat: ``(n_params,)`` the estimate of the log itself (the same estimator, noise
             and joint weights).
 
@@ -144,7 +151,8 @@ def simex_bias(
         ``(n_draws, n_params)`` the refits (their spread is the bootstrap's).
 
     Raises:
-        as `signal_bootstrap`.
+        IdentificationError: as for `signal_bootstrap`.
+        torchjfa.data.LogError: as for `signal_bootstrap`.
     """
     doubled = noise
     if noise.input_noise is not None:

@@ -19,7 +19,7 @@ __all__ = ["make_consistent"]
 _RESERVED = ("layout", "moments", "metric", "input_noise", "parametrization", "theta_hat")
 
 
-@single_thread()  # small matrices: threads only wait on a busy machine
+@single_thread()  # small matrices: threads only wait on each other
 def make_consistent(
     result: IdentificationResult, options: Options | None = None
 ) -> IdentificationResult:

@@ -101,8 +101,8 @@ def choose_noise(model: RigidBodyModel, data, options: Options | None = None) ->
     auto = mode == "auto"
     if auto:
         # the propagated noise only where the estimator takes it: given to the projection's
-        # metric alone (OLS and the like) it made the real Panda log's default run worse
-        # (docs/report.md), so that stays as it was
+        # metric alone (OLS and the like) it predicts held-out torques of a real log worse
+        # (docs/report.md)
         mode = "periods" if pnoise is not None else "learn"
         if mode == "learn" and _takes_input_noise(options.estimator):
             mode = "propagated"

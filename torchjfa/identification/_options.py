@@ -143,7 +143,7 @@ class Compute:
         group="compute",
         action="switch",
         help="form the regressor with a C++ kernel generated for the robot (several times "
-        "faster; about 2 s to build the first time); by default wherever a C++ compiler is "
+        "faster; built once per robot and cached); by default wherever a C++ compiler is "
         "found, else the torch path",
     )
 

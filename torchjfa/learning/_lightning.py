@@ -56,8 +56,10 @@ class ResidualDynamicsModule(L.LightningModule):
         features: features of the residual (see `ResidualDynamics`; not saved as a
             hyper-parameter, give it again to `load_checkpoint`); n_features its width.
         residual_kind: the default residual, ``"mlp"`` or ``"joint"`` (see `ResidualDynamics`).
-        hidden, seed: of the default residual network.
-        lr, weight_decay: Adam's; parameters a module lists in its ``no_weight_decay()`` (the
+        hidden: of the default residual network.
+        seed: of the default residual network.
+        lr: Adam's learning rate.
+        weight_decay: Adam's; parameters a module lists in its ``no_weight_decay()`` (the
             linear term of a `JointResidual`) are not decayed.
         scheduler: ``"cosine"`` (cosine annealing of the learning rate to 0 over
             ``trainer.max_epochs``) or ``"none"``.

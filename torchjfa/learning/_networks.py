@@ -39,10 +39,12 @@ class MLP(nn.Module):
     (saved in ``state_dict``), identity until `fit_normalization` sets them from data.
 
     Args:
-        in_features, out_features: input and output widths.
+        in_features: input width.
+        out_features: output width.
         hidden: widths of the hidden layers.
         activation: ``"tanh"``, ``"relu"``, ``"silu"`` or ``"gelu"``.
-        dtype, device: of the weights (float64 by default, as the physics part).
+        dtype: of the weights (float64 by default, as the physics part).
+        device: of the weights.
         seed: seeds the weight initialisation (a local ``torch.Generator``), None: torch's
             global generator.
         zero_output: start the last layer at zero, so that the untrained network returns
@@ -164,8 +166,11 @@ class JointResidual(nn.Module):
         ridge: penalty of the least-squares fit of the linear term, per sample, on standardised
             features (the features of a joint that moved have variance 1 and are shrunk by
             ``1 / (1 + ridge)`` at most).
-        dtype, device, seed, zero_output: as for `MLP` (with ``zero_output`` the untrained
-            residual is ``out_mean``: zero before `fit_normalization`).
+        dtype: as for `MLP`.
+        device: as for `MLP`.
+        seed: as for `MLP`.
+        zero_output: as for `MLP` (the untrained residual is then ``out_mean``: zero before
+            `fit_normalization`).
 
     Attributes:
         linear: ``(n_dof, k')`` weights of the linear term (``k' = k + 1`` with the friction

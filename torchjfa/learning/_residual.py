@@ -54,7 +54,8 @@ class ResidualDynamics(nn.Module):
             one) mapping ``(q, qd, qdd)`` to ``(*batch, n_features)``; default `state_features`.
         n_features: width of ``features``' output; default ``3 n_dof`` (the default features).
         n_dof: joints, when there is no ``inverse_dynamics``.
-        hidden, seed: of the default `MLP`.
+        hidden: of the default `MLP`.
+        seed: of the default `MLP`.
 
     Attributes:
         inverse_dynamics: the `InverseDynamics` (its theta frozen), or None.
@@ -150,7 +151,9 @@ class ResidualDynamics(nn.Module):
         """``Y(q, qd, qdd) theta``, ``(*batch, n_dof)`` (zeros without physics).
 
         Args:
-            q, qd, qdd: ``(*batch, n_dof)``.
+            q: ``(*batch, n_dof)`` positions.
+            qd: ``(*batch, n_dof)`` velocities.
+            qdd: ``(*batch, n_dof)`` accelerations.
             regressor: optionally the precomputed ``Y`` ``(*batch, n_dof, n_params)`` of these
                 samples (`RigidBodyModel.regressor` is the expensive part; a data module can
                 compute it once per sample).
@@ -178,7 +181,9 @@ class ResidualDynamics(nn.Module):
         """Joint torques (N m or N).
 
         Args:
-            q, qd, qdd: ``(*batch, n_dof)`` joint positions, velocities, accelerations.
+            q: ``(*batch, n_dof)`` joint positions.
+            qd: ``(*batch, n_dof)`` joint velocities.
+            qdd: ``(*batch, n_dof)`` joint accelerations.
             regressor: optional precomputed ``(*batch, n_dof, n_params)`` (see
                 `rigid_body_torque`).
 

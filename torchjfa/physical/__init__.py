@@ -1,6 +1,6 @@
 """Physically consistent parameters: parametrisations, projection and consistency checks.
 
-- `VirtualParameters` (the seed paper's eq. 5) and `LogCholeskyParameters` (Rucker and Wensing,
+- `VirtualParameters` (the paper's eq. 5) and `LogCholeskyParameters` (Rucker and Wensing,
   2022): ``nn.Module`` s whose output theta is consistent for every value of their variables.
 - `project`: the consistent theta closest to an unconstrained estimate in the data's metric
   ``X^T X + N diag(input noise)`` (eq. 8): the convex problem's optimum from a semidefinite

@@ -70,7 +70,7 @@ class ConsistencyReport:
     @property
     def body_weakly_ok(self) -> torch.Tensor:
         """``(n_joints,)`` mass, inertia at the centre of mass and friction hold (what the
-        seed's eq. 5 guarantees; the triangle inequalities are not required)."""
+        paper's eq. 5 guarantees; the triangle inequalities are not required)."""
         return self.mass_ok & self.inertia_ok & self.friction_ok
 
     @property

@@ -49,7 +49,7 @@ class Problem:
             f = f + self.weight * (sq if self.prior_w is None else self.prior_w * sq).sum()
         return f
 
-    @single_thread()  # small matrices: threads only wait on a busy machine
+    @single_thread()  # small matrices: threads only wait on each other
     def minimiser(self) -> torch.Tensor:
         """The objective's minimiser without the consistency constraints, ``(d,)``: the solution
         of ``(M + ridge I + weight W) theta = M theta_hat + weight W prior`` (minimum norm where

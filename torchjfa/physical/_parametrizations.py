@@ -4,7 +4,7 @@ Two ``nn.Module`` s map free (unconstrained) variables to the parameter vector t
 `ParameterLayout` (see `torchjfa.dynamics`), so that a gradient-based optimiser on the free
 variables can never leave the set of consistent parameters:
 
-- `VirtualParameters`: the seed paper's eq. 5 (Ting, Mistry, Peters, Schaal and Nakanishi,
+- `VirtualParameters`: the paper's eq. 5 (Ting, Mistry, Peters, Schaal and Nakanishi,
   "A Bayesian approach to nonlinear parameter identification for rigid body dynamics", 2006),
   11 "virtual" parameters per joint: mass ``m = phi1^2``, centre of mass ``c = (phi2, phi3,
   phi4)``, inertia at the centre of mass ``I_c = L L^T`` with
@@ -148,7 +148,7 @@ def _lower_from_six(v: torch.Tensor) -> torch.Tensor:
 
 
 def inertial_from_virtual(phi: torch.Tensor) -> torch.Tensor:
-    """Eq. 5 of the seed paper: ``(..., 10)`` virtual parameters -> ``(..., 10)`` inertial
+    """Eq. 5 of the paper: ``(..., 10)`` virtual parameters -> ``(..., 10)`` inertial
     parameters ``[m, m c, I_o]`` (Pinocchio's order), with ``m = phi1^2``, ``c = phi2..4``,
     ``I_c = L L^T`` and ``I_o = I_c + m (|c|^2 1 - c c^T)``."""
     mass = phi[..., :1] ** 2  # (..., 1)
@@ -398,7 +398,7 @@ class _ConsistentParameters(nn.Module):
 
 
 class VirtualParameters(_ConsistentParameters):
-    """The virtual parameters of the seed paper's eq. 5 as an ``nn.Module``.
+    """The virtual parameters of the paper's eq. 5 as an ``nn.Module``.
 
     Per joint, ``phi`` holds ``(sqrt m, cx, cy, cz, L11, L21, L31, L22, L32, L33)`` (m in kg, c in
     m, L in sqrt(kg) m) then one variable per friction term (squared for viscous and Coulomb
@@ -410,7 +410,8 @@ class VirtualParameters(_ConsistentParameters):
         layout: a `ParameterLayout` or an object with a ``.layout`` attribute.
         phi: initial variables, shape ``(n_joints, 10 + n_friction)``; default: every body 1 kg
             at the origin with ``I_c = 0.01 kg m^2 * 1``, zero friction.
-        dtype, device: of the default ``phi`` (a given ``phi`` keeps its own).
+        dtype: of the default ``phi`` (a given ``phi`` keeps its own).
+        device: of the default ``phi``.
 
     Example:
         >>> params = VirtualParameters.from_theta(theta_hat, model)  # doctest: +SKIP
@@ -446,7 +447,8 @@ class LogCholeskyParameters(_ConsistentParameters):
         layout: a `ParameterLayout` or an object with a ``.layout`` attribute.
         phi: initial variables, shape ``(n_joints, 10 + n_friction)``; default: the same body as
             `VirtualParameters`' default.
-        dtype, device: of the default ``phi``.
+        dtype: of the default ``phi``.
+        device: of the default ``phi``.
     """
 
     _inertial_map = staticmethod(inertial_from_log_cholesky)

@@ -1,6 +1,6 @@
 """Projection of an unconstrained parameter estimate onto physically consistent parameters.
 
-The seed paper's section III.B: given any estimator's unconstrained theta_hat, find the
+The paper's section III.B: given any estimator's unconstrained theta_hat, find the
 consistent theta closest to it in the metric of the data, eq. 8,
 
     min_phi  (theta(phi) - theta_hat)^T M (theta(phi) - theta_hat),
@@ -190,8 +190,8 @@ def project(
     objective and 1e-3 of its value at theta = 0 and the Newton model at its end predicts no larger
     decrease, or after ``max_iter`` iterations (then ``converged`` is False). The
     optimisation runs with one torch thread (the setting is restored afterwards): on matrices
-    this small, BLAS threads only add synchronisation, which on a busy machine slows each
-    product down a hundredfold.
+    this small, BLAS threads only add synchronisation, which slows each product down many
+    times where other work shares the cores.
 
     Starting point. The objective in phi is not convex (eq. 5 has stationary points where a
     body's mass is 0: the gradient with respect to its centre of mass vanishes there), so the
@@ -321,8 +321,15 @@ def unconstrained_projection(
     ``description_prior="auto"``).
 
     Args:
-        theta_hat, layout, moments, metric, input_noise, prior, prior_weight, prior_scale,
-            ridge: as for `project`.
+        theta_hat: as for `project`.
+        layout: as for `project`.
+        moments: as for `project`.
+        metric: as for `project`.
+        input_noise: as for `project`.
+        prior: as for `project`.
+        prior_weight: as for `project`.
+        prior_scale: as for `project`.
+        ridge: as for `project`.
 
     Returns:
         ``(n_params,)`` float64 on theta_hat's device (not necessarily consistent).

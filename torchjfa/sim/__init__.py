@@ -1,6 +1,6 @@
 """Simulated Sarcos-like robots in MuJoCo: models, identification data, controllers.
 
-Use this package to rebuild the seed paper's robot experiments without the robots:
+Use this package to rebuild the paper's robot experiments without the robots:
 `load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects
 (`load_description` compiles any URDF or MJCF description the same way, for the same uses),
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)

@@ -1,4 +1,4 @@
-"""Computed-torque control in MuJoCo with an identified model, the seed paper's evaluation.
+"""Computed-torque control in MuJoCo with an identified model, the paper's evaluation.
 
 `computed_torque` runs the law
 
@@ -16,7 +16,7 @@ A run FAILS (``success=False`` with a reason) when the identified parameters are
 joint-space inertia matrix of ID, ``M(q)[:, i] = ID(q, 0, e_i) - ID(q, 0, 0)``, is not positive
 definite at some reference posture), ID returns NaN or inf, or the run goes unstable: the state
 is not finite, MuJoCo warns of bad accelerations, a joint leaves its range by more than
-``limit_margin`` or a position error exceeds ``max_position_error``. The seed paper reports such
+``limit_margin`` or a position error exceeds ``max_position_error``. The paper reports such
 runs as FAILURE.
 """
 
@@ -139,7 +139,8 @@ def computed_torque(
         duration: seconds to run; default one period of the trajectory.
         control_rate: Hz.
         substeps: physics steps per control step.
-        bandwidth_hz, damping_ratio: the error dynamics ``e'' + Kd e' + Kp e = 0``.
+        bandwidth_hz: the bandwidth of the error dynamics ``e'' + Kd e' + Kp e = 0``.
+        damping_ratio: their damping ratio.
         joint_names_id: ID's joint order; default ``inverse_dynamics.joint_names`` or
             ``inverse_dynamics.model.joint_names``, else MuJoCo's order.
         max_position_error: rad; larger errors mean the run failed.

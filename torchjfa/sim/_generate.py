@@ -1,6 +1,6 @@
 """Simulated identification data: a robot tracking a periodic excitation in MuJoCo.
 
-`generate_log` rebuilds the seed paper's robot experiments in simulation: the robot follows a
+`generate_log` rebuilds the paper's robot experiments in simulation: the robot follows a
 sum-of-sinusoids reference (`random_trajectory`) under a computed-torque controller (PD on the
 acceleration plus inverse dynamics) at the control rate (420 Hz for the head, 480 Hz for the
 arm, as in the paper), with the physics at an integer multiple of it; q, qd and the applied
@@ -288,8 +288,10 @@ def generate_log(
         noise: `SensorNoise` (default ``SensorNoise()``; ``SensorNoise.zero()`` for none).
         velocity_source: ``"sensor"`` (qd is the noisy velocity sensor, qdd its derivative)
             or ``"differentiate"`` (qd and qdd are derivatives of the noisy position).
-        diff_method, cutoff_hz: passed to `torchjfa.data.differentiate`.
-        bandwidth_hz, damping_ratio: the PD loop's bandwidth and damping (see the module).
+        diff_method: passed to `torchjfa.data.differentiate`.
+        cutoff_hz: passed to `torchjfa.data.differentiate`.
+        bandwidth_hz: the PD loop's bandwidth (see the module).
+        damping_ratio: the PD loop's damping ratio.
         settle_periods: whole periods simulated before recording (at least 1: the filter's
             lead-in comes from the last of them).
         noisy_feedback: the controller's errors use the measured state (its model terms

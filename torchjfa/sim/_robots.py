@@ -3,10 +3,10 @@
 Two MJCF models live in ``torchjfa/sim/models/``:
 
 * ``"head"`` (``sarcos_head.xml``): a 7-DoF oculomotor head, neck pan/tilt/roll then a pan/tilt
-  pair per eye on its own branch (77 rigid-body parameters with viscous friction), as the seed
-  paper's Sarcos vision head.
+  pair per eye on its own branch (77 rigid-body parameters with viscous friction), as the paper's
+  Sarcos vision head.
 * ``"arm"`` (``sarcos_arm.xml``): a 10-DoF anthropomorphic arm, 3 shoulder, 1 elbow, 3 wrist
-  and 3 finger joints (the fingers branch off the hand; 110 parameters), as the seed's Sarcos arm.
+  and 3 finger joints (the fingers branch off the hand; 110 parameters), as the paper's Sarcos arm.
 
 Both are fixed-base trees of hinge joints with one motor per joint (``ctrl`` is the joint
 torque in N m). Their masses and inertias are made up but plausible; they are not the real
@@ -37,7 +37,7 @@ RMS torque.
   wrist_aa 0.02/0.0013/0.03/0.065, thumb 1.2e-4/8e-6/6e-4/0.0012,
   index 2.6e-4/1.8e-5/0.0012/0.0024, fingers 3.8e-4/2.5e-5/0.002/0.004.
 
-Viscous damping is part of the rigid-body parameter set (the seed's 11th parameter per joint),
+Viscous damping is part of the rigid-body parameter set (the paper's 11th parameter per joint),
 so it stays on by default; armature, frictionloss and stiffness are what the identified model
 cannot represent. In MuJoCo's inverse dynamics the torque of a joint moving at a speed that
 saturates the dry-friction constraint is ``Y theta + a qdd + k q + f sign(qd)``.

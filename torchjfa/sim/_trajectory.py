@@ -1,4 +1,4 @@
-"""Periodic sinusoidal excitation trajectories, as in the seed paper's robot experiments.
+"""Periodic sinusoidal excitation trajectories, as in the paper's robot experiments.
 
 Each joint follows a sum of a few sinusoids with different frequencies and phases,
 
