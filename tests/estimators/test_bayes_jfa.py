@@ -391,7 +391,7 @@ def test_irrelevant_column_correlated_with_a_noisy_one_is_amplified_by_the_unide
     noisy: E[y | x] puts a small weight on x_3 (it carries information about t_4 that the noisy
     x_4 lost), which OLS and the noisy-input predictor share. Eq. (4) then divides that weight
     by the reliability 1 - psi_x / var(x) that the model attributes to the column; without
-    input_noise this split is not identified (docs/bayesian-jfa.md), and the shared relevance
+    input_noise this split is not identified (docs/theory.md), and the shared relevance
     prior, shrinking w_x of a column that matters little, puts ~90% of column 3's variance
     into psi_x (the truth: 8%): its coef_ comes out ~10x the predictor's. Given the input
     noise, the split is identified and the amplification is gone.
