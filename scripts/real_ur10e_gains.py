@@ -3,6 +3,7 @@ to find them.
 
     python scripts/real_ur10e_gains.py           # about two minutes
     python scripts/real_ur10e_gains.py --smoke   # fewer logs and blocks: a check, no result
+    python scripts/real_ur10e_gains.py --write-docs   # also into docs/benchmarks.md
 
 The logs are `../shared/data/ur10e_mamedov2020` (motor currents; not shipped with the
 package). Without them the script says so and stops (exit 0).
@@ -32,6 +33,9 @@ import torch
 
 import torchjfa
 from torchjfa.identification import IdentificationWarning, identify_drive_gains, identify_payload
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _benchmarks_page as page  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ur10e_mamedov2020"
 #: the gains in the dataset's README, N m/A, joints 1-6
@@ -103,12 +107,19 @@ def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | N
     return result
 
 
+def parser() -> argparse.ArgumentParser:
+    """The command line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--data", default=str(DATA), help="the logs' folder")
+    p.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
+    return page.add_option(p)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(DATA), help="the logs' folder")
-    parser.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
-    args = parser.parse_args(argv)
-    run(Path(args.data), smoke=args.smoke)
+    args = parser().parse_args(argv)
+    with page.recording("real_ur10e_gains", "real_ur10e_gains", args.write_docs, argv,
+                        smoke=args.smoke):  # fmt: skip
+        run(Path(args.data), smoke=args.smoke, out=sys.stdout)
     return 0
 
 

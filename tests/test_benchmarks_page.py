@@ -23,6 +23,8 @@ SCRIPTS = (
     "sim_payload",
     "spread_coverage",
     "sim_bjfa_vs_ols",
+    "real_ur10e_gains",
+    "sim_payload_excitation",
 )
 STAMP = {"machine": "a test machine", "date": "today"}
 
