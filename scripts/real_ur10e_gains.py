@@ -3,6 +3,7 @@ to find them.
 
     python scripts/real_ur10e_gains.py           # about two minutes
     python scripts/real_ur10e_gains.py --smoke   # fewer logs and blocks: a check, no result
+    python scripts/real_ur10e_gains.py --swap    # the gains from the other pair
     python scripts/real_ur10e_gains.py --write-docs   # also into docs/benchmarks.md
 
 The logs are `../shared/data/ur10e_mamedov2020` (motor currents; not shipped with the
@@ -20,6 +21,8 @@ package). Without them the script says so and stops (exit 0).
    (`identify_payload`). Printed: the payload's mass against 2.602 kg, and the held-out current
    RMS of the loaded run (the last part of it, with the payload model; in amperes, so that the
    two sets of gains are judged in the same unit).
+
+``--swap`` exchanges the pairs: the gains from the 2.602 kg pair, checked on the 2.805 kg one.
 """
 
 from __future__ import annotations
@@ -61,10 +64,14 @@ def _robot(folder: Path, gains, tmp: Path, smoke: bool) -> Path:
     return ident.write(tmp, plots=False)["model"]
 
 
-def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | None:
-    """Steps 1-3 of the module; the numbers, or None without the logs."""
+def run(
+    folder: Path = DATA, *, smoke: bool = False, swap: bool = False, out=sys.stdout
+) -> dict | None:
+    """Steps 1-3 of the module (``swap``: the gains from `CHECK_PAIR`, checked on
+    `FIT_PAIR`); the numbers, or None without the logs."""
     import tempfile
 
+    fit_pair, check_pair = (CHECK_PAIR, FIT_PAIR) if swap else (FIT_PAIR, CHECK_PAIR)
     if not (folder / CHECK_PAIR[0]).is_file():
         print(f"no UR10e logs in {folder}; nothing to do", file=out)
         return None
@@ -72,7 +79,7 @@ def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | N
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         model = _robot(folder, DRIVE_GAINS, tmp / "readme", smoke)
-        loaded, free, mass = FIT_PAIR
+        loaded, free, mass = fit_pair
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentificationWarning)
             found = identify_drive_gains(
@@ -83,7 +90,7 @@ def run(folder: Path = DATA, *, smoke: bool = False, out=sys.stdout) -> dict | N
         print(found.table(), file=out)
         result["gains"] = found.summary()
         sets = {"README": DRIVE_GAINS, "identified": tuple(found.gains.tolist())}
-        loaded, free, mass = CHECK_PAIR
+        loaded, free, mass = check_pair
         print(f"\ncheck on {loaded} / {free} ({mass} kg), not used above:", file=out)
         for name, gains in sets.items():
             robot = _robot(folder, gains, tmp / name, smoke)
@@ -112,14 +119,15 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", default=str(DATA), help="the logs' folder")
     p.add_argument("--smoke", action="store_true", help=f"{SMOKE_LOGS} logs, a check")
+    p.add_argument("--swap", action="store_true", help="the gains from the other pair")
     return page.add_option(p)
 
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    with page.recording("real_ur10e_gains", "real_ur10e_gains", args.write_docs, argv,
-                        smoke=args.smoke):  # fmt: skip
-        run(Path(args.data), smoke=args.smoke, out=sys.stdout)
+    name = "real_ur10e_gains-swap" if args.swap else "real_ur10e_gains"
+    with page.recording(name, "real_ur10e_gains", args.write_docs, argv, smoke=args.smoke):
+        run(Path(args.data), smoke=args.smoke, swap=args.swap, out=sys.stdout)
     return 0
 
 

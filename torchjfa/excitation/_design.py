@@ -235,10 +235,7 @@ def optimize_excitation(
     g = generator if generator is not None else torch.Generator()
     if generator is None and seed is not None:
         g.manual_seed(int(seed))
-    if payload is None:
-        basis = base_directions(model, limits, joint_weights=joint_weights, generator=g)
-    else:
-        basis = payload_directions(model, limits, payload, joint_weights=joint_weights, generator=g)
+    basis = _basis(model, limits, payload, joint_weights, g)
     kin = None
     if limits.workspace:
         kin = _Kinematics(model, [b.frame for b in limits.workspace])
@@ -289,6 +286,13 @@ def optimize_excitation(
         geometry=geometry.describe() if geometry is not None else [],
         posture_moved=moved,
     )
+
+
+def _basis(model, limits, payload, joint_weights, g) -> torch.Tensor:
+    """The directions the criterion weighs: the robot's identifiable ones, or a payload's."""
+    if payload is None:
+        return base_directions(model, limits, joint_weights=joint_weights, generator=g)
+    return payload_directions(model, limits, payload, joint_weights=joint_weights, generator=g)
 
 
 def _checked(model, traj, limits, rate, theta, geometry):
