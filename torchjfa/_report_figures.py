@@ -119,10 +119,10 @@ def parameters_figure(rows, flags, path=None):
     Bayesian JFA's posterior spread) on a log axis, parameters grouped by body (one tick and
     a separator per body), colour and marker by kind (mass, first moments, inertia,
     friction); a line at 2 spreads (below it the data do not tell the value from 0);
-    parameters the data do not determine marked at the foot of the axes (not excited: a
-    zero regressor column; undetermined: a value or spread beyond any physical scale, see
-    `torchjfa.report.undetermined`); parameters Bayesian JFA calls irrelevant (``<alpha>``
-    above 100 times the median) ringed. Without any spread: ``|identified|``. Every mark is
+    parameters without a ratio marked at the foot of the axes (not excited: a zero regressor
+    column, `IdentificationReport.excited`; off scale: a value or spread beyond any physical
+    scale, `torchjfa.report.undetermined`); parameters Bayesian JFA calls irrelevant
+    (``<alpha>`` above 100 times the median) ringed. Without any spread: ``|identified|``. Every mark is
     explained in the legend, right of the axes.
 
     Args:
@@ -142,7 +142,7 @@ def parameters_figure(rows, flags, path=None):
     y, bad, floor, ylabel, title, has_spread = _spread_ratios(rows, flags)
     plotted = excited & ~bad
     low, top = _y_range(y, plotted, floor)
-    foot = low * 1.6  # where the marks of undetermined parameters sit
+    foot = low * 1.6  # where the marks of parameters without a ratio sit
 
     fig, axes = _figure(path, 1, figsize=(max(8.0, 0.09 * n + 4.0), 4.2))
     ax = axes[0, 0]
@@ -175,7 +175,7 @@ def parameters_figure(rows, flags, path=None):
         _mark(ax, handles, x, silent, foot, label, "0.55", "x", 18, zorder=3)
     flagged = excited & bad
     if flagged.any():
-        label = f"undetermined ({int(flagged.sum())}): beyond any physical scale"
+        label = f"off scale ({int(flagged.sum())}): beyond any physical scale"
         _mark(ax, handles, x, flagged, foot, label, "k", "$?$", 30, zorder=3)
     rel = np.array([np.nan if r["relevance"] is None else r["relevance"] for r in rows])
     if np.isfinite(rel).any():
@@ -211,10 +211,8 @@ def _spread_ratios(rows, flags):
             y = np.abs(value) / spread
         ylabel = f"|unconstrained| / {spread_name} spread"
         title = f"How far each unconstrained estimate lies from 0, in {spread_name} spreads"
-        if spread_name == "posterior":  # docs/report.md: 2-3x too narrow on the model's data
-            title += (
-                "\n(a lower bound on the spread, docs/report.md: the ratios come out too large)"
-            )
+        if spread_name == "posterior":  # 2-3x too narrow even on the model's own data
+            title += "\n(the posterior spread is a lower bound: the ratios come out too large)"
         floor = 1e-3
     else:
         bad = flags["identified"].numpy()

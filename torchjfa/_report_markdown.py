@@ -1,11 +1,12 @@
 """How an identification report reads: the Markdown of `IdentificationReport.markdown`.
 
-One function per section of ``report.md`` (header, held-out torques, noise, physical
-consistency, what the data determine, parameters, figures, reproduce), and the wording they
-share with ``report.json`` and the figures: `estimator_text`, `verdict` and the rule of what
-reads "undetermined" (`undetermined`). `torchjfa.report` re-exports the public names; use it,
-not this module. The section functions take the `IdentificationReport` and read only its
-attributes and methods (this module imports nothing from `torchjfa.report`).
+``report.md`` opens with the verdict (`torchjfa._report_verdict`), then one short section each:
+the held-out torque error per joint, the warnings, what the data determine, physical
+consistency, noise, how the model was identified, the figures, and where the long tables are
+(`parameters.csv`, ``report.json``, or the appendix, `torchjfa._report_appendix`, with
+``appendix=True``). The wording the report shares with ``report.json``, the figures and the
+command's output is in `torchjfa._report_words`. The section functions read only the
+`IdentificationReport`'s attributes and methods (no import of `torchjfa.report`).
 """
 
 from __future__ import annotations
@@ -14,327 +15,240 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-import numpy as np
-import torch
-
+from ._report_verdict import Verdict, quadratic_mean, short_warning
+from ._report_words import (
+    _filtered,
+    _noise_mode,
+    consistency_table,
+    convergence,
+    estimator_text,
+    g3,
+    verdict,
+)
 from ._result import PRIOR_TOLERANCE
-from .physical import ConsistencyReport
-from .physical._base import parameter_kind
 
-__all__ = ["UNDETERMINED_FACTOR", "estimator_text", "report_markdown", "undetermined", "verdict"]
+__all__ = ["report_markdown"]
 
-
-def _setting(value) -> str:
-    """One estimator setting, short: a per-column tensor as its size and median, not its
-    entries."""
-    if isinstance(value, (torch.Tensor, np.ndarray)):
-        v = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
-        if v.numel() == 1:
-            return f"{float(v):.4g}"
-        zeros = int((v == 0).sum())
-        text = f"given: {v.numel()} columns, median {float(v.median()):.2g}"
-        return "(" + text + (f", {zeros} of them 0" if zeros else "") + ")"
-    if isinstance(value, float):
-        return f"{value:g}"
-    return repr(value)
-
-
-def estimator_text(est) -> str:
-    """The estimator's name and settings on one line, e.g. ``BayesianJFA(max_iter=20000, ...,
-    input_noise=(given: 84 columns, median 0.00031, 10 of them 0))``: arrays summarised (`repr`
-    would print every entry)."""
-    params = ", ".join(
-        f"{k}={_setting(v)}" for k, v in vars(est).items() if not k.endswith("_") and k[0] != "_"
-    )
-    return f"{type(est).__name__}({params})"
-
-
-_NOISE_MODES = {
-    "periods": "fixed to the spread between excitation periods",
-    "learn": "learned by the estimator",
-    "propagated": "the log's sensor noise (from its spectrum) propagated to the regressor",
-}
-
-
-def _convergence(est) -> tuple[str, str | None]:
-    """``(line, warning)``: the estimator's iterations and whether its stopping rule held, and a
-    warning when it did not (None when it did or the estimator is not iterative)."""
-    name = type(est).__name__
-    if not hasattr(est, "converged_"):
-        if hasattr(est, "n_iter_"):
-            return f"{int(est.n_iter_)} iterations (no convergence flag)", None
-        return "closed form (no iterations)", None
-    n_iter = int(getattr(est, "n_iter_", -1))
-    reason = getattr(est, "stop_reason_", None)
-    if est.converged_:
-        return f"{n_iter} iterations, converged: yes (stopping rule: {reason})", None
-    cap = getattr(est, "max_iter", None)
-    return (
-        f"{n_iter} iterations, converged: **no** (stopped by {reason})",
-        f"**Warning: {name} did not converge**: it stopped at its iteration cap"
-        + (f" (max_iter={cap})" if cap is not None else "")
-        + " before its stopping rule held, so its estimates may be far from the optimum; "
-        "compare the held-out errors with `--estimator ols`, or raise `--max-iter`.",
-    )
-
-
-# the unit value of each parameter kind (kg, kg m, kg m^2, N m s/rad, N m): a floor under the
-# description's scale, so that a description with (near-)zero masses still has a scale
-_UNIT_SCALE = 1.0
-UNDETERMINED_FACTOR = 1e6  # |value| above this x the kind's scale is beyond any physical scale
-
-
-def undetermined(values, names, description) -> torch.Tensor:
-    """Which ``values`` lie beyond any physical scale: not finite, or larger in magnitude than
-    `UNDETERMINED_FACTOR` times their kind's scale, the largest ``|description|`` value of that
-    kind (at least 1 in SI units, so that a description with near-zero masses does not make
-    every value look unphysical).
-
-    Args:
-        values: ``(n_params,)`` values (unconstrained estimates, spreads), NaN allowed.
-        names: the ``n_params`` parameter names (``joint.m``, ``joint.Ixx``, ``joint.fv``, ...).
-        description: ``(n_params,)`` the description's parameters.
-
-    Returns:
-        ``(n_params,)`` bool, True where the value should read "undetermined".
-    """
-    v = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
-    d = torch.as_tensor(description, dtype=torch.float64).reshape(-1).abs()
-    kinds = [parameter_kind(n) for n in names]
-    scale = {k: _UNIT_SCALE for k in kinds}
-    for k, x in zip(kinds, d.tolist(), strict=True):
-        if math.isfinite(x):
-            scale[k] = max(scale[k], x)
-    bound = torch.tensor([UNDETERMINED_FACTOR * scale[k] for k in kinds], dtype=torch.float64)
-    return ~torch.isfinite(v) | (v.abs() > bound)
-
-
-def verdict(c: ConsistencyReport) -> str:
-    """One verdict, the consistency table's own ("yes"/"no", bodies failing of all), with why."""
-    n = len(c.joint_names)
-    if c.ok:
-        return f"yes (all {n} bodies: pseudo-inertia positive definite, friction >= 0)"
-    n_bad = int((~c.body_ok).sum())
-    if c.weakly_ok:
-        return (
-            f"no ({n_bad} of {n} bodies fail: the triangle inequalities or a positive "
-            "definite pseudo-inertia; mass > 0 and inertia PSD, the seed's eq. 5, hold; "
-            "--parametrization log-cholesky enforces all)"
-        )
-    return f"no ({n_bad} of {n} bodies fail)"
-
-
-def _noise_mode(settings: Mapping[str, object], estimator) -> str:
-    """``"; input noise: ..."`` from the settings' input-noise mode ("" without one)."""
-    mode = settings.get("input_noise")
-    if not mode:
-        return ""
-    text = _NOISE_MODES.get(str(mode), str(mode))
-    if not hasattr(estimator, "input_noise"):  # OLS, ridge, ...: projection only
-        return f"; input noise ({text}) used in the projection's metric only"
-    return f"; input noise: {text}"
+#: the verdict's most urgent warnings shown at the top (all are in the section "Warnings")
+TOP_WARNINGS = 2
 
 
 # ---------------------------------------------------------------------------------- sections
-def report_markdown(report, images: Mapping[str, str] | None = None) -> str:
+def report_markdown(
+    report,
+    images: Mapping[str, str] | None = None,
+    *,
+    folder=None,
+    appendix: bool = False,
+) -> str:
     """The whole report as Markdown.
 
     Args:
         report: an `IdentificationReport`.
         images: caption -> relative PNG path of each figure (no figures section when empty).
+        folder: the report's folder (the verdict's load step names ``folder/model.npz``).
+        appendix: whether the appendix (`torchjfa._report_appendix.appendix`, which the
+            caller appends) follows: the last section points to it.
 
     Returns:
-        The text of ``report.md``, ending with a newline.
+        The text of ``report.md`` up to the appendix, ending with a newline.
     """
-    summary = report.summary()
+    model_path = "model.npz" if folder is None else str(Path(folder) / "model.npz")
+    v = report.judge(model_path)
+    robot = report.settings.get("robot") or Path(report.model.source_path or "robot").name
     lines = [
-        *_header(report, summary),
-        *_torques_section(report.fits, report.model.joint_names),
-        *_logs_section(report.settings),
-        *_noise_section(report.noise),
-        *_consistency_section(report.consistency),
+        f"# Identification report: {robot}",
+        "",
+        *_verdict_section(report, v),
+        *_torques_section(report),
+        *_warnings_section(v),
         *_base_section(report),
-        *_parameters_section(summary["parameters"], report.undetermined_entries()),
+        *_consistency_section(report),
+        *_noise_section(report),
+        *_details_section(report),
         *_figures_section(images),
-        *_reproduce_section(report.settings),
+        "Every parameter (value, status, source, spread, description): `parameters.csv`; every "
+        "number of this report, the base-parameter combinations among them: `report.json`; "
+        + (
+            "the long tables: the appendix below."
+            if appendix
+            else "the long tables (parameters, base-parameter combinations, per log, per body): "
+            "`IdentificationReport.write(folder, appendix=True)`."
+        ),
     ]
     return "\n".join(lines) + "\n"
 
 
-def _header(report, s: Mapping[str, object]) -> list[str]:
-    """The title and the list of what was identified from what, and how."""
-    model, settings = report.model, report.settings
-    convergence, warning = _convergence(report.result.estimator)
-    return [
-        f"# Identification report: {s['robot'] or Path(model.source_path or 'robot').name}",
-        "",
-        f"- log: `{settings.get('log', '-')}`; {s['train_samples']} samples for "
-        f"identification, {s['validation_samples']} held out"
-        + (f" ({settings['validation']})" if settings.get("validation") else ""),
-        *([f"- data: {settings['preparation']}"] if settings.get("preparation") else []),
-        *([f"- cut-off: {settings['cutoff']}"] if settings.get("cutoff") else []),
-        *([f"- armature: {settings['armature']}"] if settings.get("armature") else []),
-        *(
-            [f"- the description with the identified parameters: {settings['description_file']}"]
-            if settings.get("description_file")
-            else []
-        ),
-        *(
-            [f"- bias correction: {settings['bias_correction']}"]
-            if settings.get("bias_correction")
-            else []
-        ),
-        f"- model: {model.n_dof} joints, {model.n_params} parameters, friction "
-        f"{', '.join(model.friction) or 'none'}"
-        + (
-            f" (Coulomb as tanh(qd / {model.coulomb_velocity:g} rad/s))"
-            if model.coulomb_velocity and "coulomb" in model.friction
-            else ""
-        )
-        + _transmission_line(model),
-        f"- estimator: `{s['estimator']}`" + _noise_mode(settings, report.result.estimator),
-        f"- convergence: {convergence}",
-        *([f"- {warning}"] if warning else []),
-        *(f"- warning: {w}" for w in settings.get("warnings", ())),
-        f"- physically consistent, identified: {verdict(report.consistency)}; "
-        f"unconstrained estimate: {verdict(report.consistency_unconstrained)}",
+def _verdict_section(report, v: Verdict) -> list[str]:
+    """The section "Verdict": accuracy against the description, consistency, what the data
+    do not determine, the warnings and the next steps."""
+    lines = ["## Verdict", "", "- " + _accuracy(v)]
+    if v.rms_description is not None and (v.same or v.worse):
+        per_joint = f"per joint: better on {len(v.better)} of {len(report.model.joint_names)}"
+        if v.same:
+            per_joint += f"; about as good on {', '.join(v.same)}"
+        if v.worse:
+            per_joint += f"; worse on {', '.join(v.worse)}"
+        lines.append(f"- {per_joint}")
+    c = report.consistency
+    n, n_bad = len(c.joint_names), int((~c.body_ok).sum())
+    files = report.settings.get("description_file")
+    lines.append(
         (
-            f"- training RMS torque error: {s['train_rmse']:.4g} N m"
-            if report.result.joint_weights is None
-            else "- training RMS of the weighted equations (each joint's residual times its "
-            f"weight): {s['train_rmse']:.4g}"
-        ),
-        "",
-    ]
+            f"- Physical consistency: yes, all {n} bodies"
+            if c.ok
+            else f"- Physical consistency: **no**, {n_bad} of {n} bodies fail"
+        )
+        + ' (section "Physical consistency")'
+        + (f"; the description with these parameters: {files}" if files else "")
+    )
+    lines.append("- " + _determined(report, v))
+    if len(v.warnings) == 1:
+        lines.append(f'- Warnings: 1 (section "Warnings"): {short_warning(v.warnings[0])}')
+    elif v.warnings:
+        lines.append(
+            f'- Warnings: {len(v.warnings)} (all in the section "Warnings"); the most urgent:'
+        )
+        lines += [f"  - {short_warning(w)}" for w in v.warnings[:TOP_WARNINGS]]
+    else:
+        lines.append("- Warnings: none")
+    for k, step in enumerate(v.next_steps):
+        lines.append(f"- **Next step**: {step}" if k == 0 else f"- then: {step}")
+    return lines + [""]
 
 
-def _torques_section(fits: Mapping[str, object], joints: list[str]) -> list[str]:
-    """The section "Held-out torque prediction": nMSE and RMS per joint of each `TorqueFit`."""
+def _accuracy(v: Verdict) -> str:
+    """The verdict's first line: the held-out RMS error against the description's."""
+    r = v.ratio
+    rms = f"RMS torque error {g3(v.rms)} N m"
+    if r is None:
+        text = f"**No description to compare with**: held-out {rms}"
+    else:
+        desc = f"against the description's {g3(v.rms_description)} N m"
+        text = {
+            "better": f"**Better than the description by {_times(r)}** on held-out data: {rms} "
+            f"{desc}",
+            "about as good": f"**About as good as the description** on held-out data "
+            f"({_times(r)}): {rms} {desc}",
+            "worse": f"**Worse than the description** on held-out data ({_times(1 / r)} its "
+            f"error): {rms} {desc}",
+        }[v.rating]
+        if not v.same and not v.worse:
+            text += " (better on every joint)"
+        elif v.rating == "better":
+            text = text.replace("** on held-out data", " overall** on held-out data")
+    if v.mean_nmse < 1.0:
+        return (
+            text + f"; the model explains {100 * (1 - v.mean_nmse):.3g} % of the held-out "
+            f"torque variance (mean nMSE {g3(v.mean_nmse)})"
+        )
+    return text + f"; mean nMSE {g3(v.mean_nmse)}: no better than the torques' mean"
+
+
+def _times(ratio: float) -> str:
+    """A ratio as ``"1.0x"``, ``"4.9x"``, ``"12x"``, ``"150x"``: two significant digits (more
+    above 100), no exponent."""
+    if ratio >= 9.95:
+        return f"{ratio:.0f}x"
+    return f"{ratio:#.2g}x"
+
+
+def _determined(report, v: Verdict) -> str:
+    """The verdict's line on the parameters the data do not determine, and where their
+    values come from."""
+    if v.counts is None:
+        return (
+            f"Not determined by the data: all {v.n_params} parameters (the data excite none); "
+            "no value is measured"
+        )
+    c = v.counts
+    text = (
+        f"Not determined by the data alone: {v.n_not_determined} of {v.n_params} parameters "
+        f"({c['combination']} only in combinations, {c['poorly excited']} poorly excited, "
+        f"{c['not excited']} not excited)"
+    )
+    if report.result.projection is None:
+        text += "; their values are the estimator's, not physical"
+    elif v.prior_weight:
+        text += "; where the data are silent they follow the description's values (its prior)"
+    else:
+        text += "; where the data are silent the projection chose them (no description prior)"
+    return text + "; `parameters.csv` marks them (columns `determined`, `source`)"
+
+
+def _torques_section(report) -> list[str]:
+    """The section "Held-out torque error": RMS and nMSE per joint, the identified model's and
+    the description's."""
+    s, fits = report.settings, report.fits
+    names = [n for n in ("identified", "description") if n in fits]
+    target = (
+        "the measured torque, unfiltered"
+        if s.get("held_out_target")
+        else "the validation log's torque as given"
+    )
+    held = f"{report.validation.n_samples} samples" + (
+        f", {s['validation']}" if s.get("validation") else ""
+    )
     lines = [
-        "## Held-out torque prediction",
+        "## Held-out torque error",
         "",
-        "nMSE = mean squared error / variance of the measured torque (0 is perfect, 1 is "
-        "no better than the mean); RMS in N m.",
+        f"Held out: {held}. Target: {target}; predicted from q, qd, qdd {_filtered(s)}.",
         "",
+        "| joint | "
+        + " | ".join(f"RMS error {n}, N m" for n in names)
+        + " | "
+        + " | ".join(f"nMSE {n}" for n in names)
+        + " |",
+        "|---" * (1 + 2 * len(names)) + "|",
     ]
-    names = list(fits)
-    head = "| joint | " + " | ".join(f"{n} nMSE | {n} RMS" for n in names) + " |"
-    lines += [head, "|---" * (1 + 2 * len(names)) + "|"]
-    for j, jn in enumerate(joints):
-        cells = []
-        for n in names:
-            f = fits[n]
-            cells += [f"{float(f.nmse[j]):.4g}", f"{float(f.rms[j]):.4g}"]
-        lines.append(f"| {jn} | " + " | ".join(cells) + " |")
-    means = []
-    for n in names:
-        f = fits[n]
-        means += [f"**{f.mean_nmse:.4g}**", f"**{float(f.rms.pow(2).mean().sqrt()):.4g}**"]
-    lines.append("| all | " + " | ".join(means) + " |")
+    for j, joint in enumerate(report.model.joint_names):
+        cells = [g3(float(fits[n].rms[j])) for n in names]
+        cells += [g3(float(fits[n].nmse[j])) for n in names]
+        lines.append(f"| {joint} | " + " | ".join(cells) + " |")
+    cells = [f"**{g3(quadratic_mean(fits[n].rms))}**" for n in names]
+    cells += [f"**{g3(fits[n].mean_nmse)}**" for n in names]
+    lines.append("| all | " + " | ".join(cells) + " |")
     return lines + [
         "",
-        "all: nMSE is the mean over the joints; RMS is the quadratic mean over the joints, "
-        "sqrt(mean of the squared per-joint RMS), in N m.",
+        "RMS error: N m (N for prismatic joints); all: over every held-out sample, the quadratic "
+        "mean of the joints' RMS. nMSE: mean squared error / variance of the measured torque "
+        "(0 perfect, 1 no better than its mean); all: the mean over the joints. The "
+        "unconstrained estimate's errors and each log's: `report.json` (`validation`, "
+        "`settings.logs`).",
+        "",
     ]
 
 
-def _logs_section(settings: Mapping[str, object]) -> list[str]:
-    """The held-out target, and with several logs a table of each log's samples, rest dropped
-    and held-out error of the identified model."""
-    lines = []
-    if settings.get("held_out_target"):
-        lines += ["", f"Held-out target: {settings['held_out_target']}."]
-    logs = settings.get("logs") or []
-    if len(logs) < 2 and not any(any(r.get("rest_dropped_s") or ()) for r in logs):
-        return lines
-    lines += [
-        "",
-        "### Logs",
-        "",
-        "| log | training samples | held out | rest dropped, s (start, end) | held-out nMSE | "
-        "held-out RMS, N m |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in logs:
-        rest = ", ".join(f"{x:.3g}" for x in r.get("rest_dropped_s") or (0.0, 0.0))
-        nmse = f"{r['mean_nmse']:.4g}" if "mean_nmse" in r else "-"
-        rms = f"{r['mean_rms']:.4g}" if "mean_rms" in r else "-"
-        lines.append(
-            f"| `{r['log']}` | {r['train_samples']} | {r['held_out_samples']} | {rest} | "
-            f"{nmse} | {rms} |"
-        )
-    return lines + ["", "nMSE: the mean over the joints; RMS: the mean of the joints' RMS."]
-
-
-def _noise_section(noise: Mapping[str, object]) -> list[str]:
-    """The section "Noise": one line per noise estimate (lists per joint, None as "-")."""
-    lines = ["", "## Noise", ""]
-    for k, v in noise.items():
-        if isinstance(v, list):
-            v = ", ".join("-" if x is None else f"{x:.3g}" for x in v)
-        lines.append(f"- {k}: {v}")
-    return lines
-
-
-def _consistency_section(consistency: ConsistencyReport) -> list[str]:
-    """The section "Physical consistency of the identified parameters": the check's table."""
-    lines = ["", "## Physical consistency of the identified parameters", "", "```"]
-    return lines + [consistency.table(), "```", ""]
+def _warnings_section(v: Verdict) -> list[str]:
+    """The section "Warnings": every warning, most urgent first; nothing without any."""
+    if not v.warnings:
+        return []
+    return ["## Warnings", "", *(f"- {w}" for w in v.warnings), ""]
 
 
 def _base_section(report) -> list[str]:
     """The section "What the data determine" (`base_parameters` of the training data): the
-    counts, the base parameters that combine several parameters, and the description prior's
-    weight."""
+    parameters per status, the base parameters and the description prior's weight."""
     b = report.base
     lines = ["## What the data determine", ""]
     if b is None:
         return lines + ["The training data excite no parameter.", ""]
     c = b.counts()
     lines += [
-        f"- base (identifiable) parameters: **{b.rank}** of {b.n_params}; "
-        f"{b.n_determined} of them determined to {b.resolution:g} of their physical scale "
-        f"by this log (residual noise std {math.sqrt(max(b.noise_var, 0.0)):.3g} per row)",
-        f"- condition number of the column-scaled base regression: {b.condition_number:.3g}",
-        f"- parameters: {c['determined']} determined alone, {c['combination']} only in "
-        f"combination with others (their single values are not determined: read the "
-        f"combinations below), {c['poorly excited']} poorly excited (identifiable, but this "
-        f"log leaves them to the noise), {c['not excited']} not excited (zero regressor "
-        "column)",
-        "",
-        "Base parameters that combine several parameters (each is `first + sum coef x "
-        "other`; the data determine the combination, not its terms); jackknife std: the "
-        f"delete-one-block spread of the unconstrained value ({SPREAD_NOTE}).",
-        "",
-        "| base parameter | identified | unconstrained | jackknife std |",
-        "|---|---|---|---|",
+        f"- parameters: {c['determined']} determined by the data alone, {c['combination']} "
+        f"only in combinations with others, {c['poorly excited']} poorly excited "
+        f"(identifiable, but this log leaves them to the noise), {c['not excited']} not "
+        f"excited (zero regressor column): {b.n_params} in all",
+        f"- base parameters (the independent combinations the data can determine): "
+        f"**{b.rank}** of {b.n_params}; {b.n_determined} of them determined to "
+        f"{b.resolution:g} of their physical scale by this log (residual noise std "
+        f"{math.sqrt(max(b.noise_var, 0.0)):.3g} per row); condition number of the "
+        f"column-scaled base regression {b.condition_number:.3g}",
     ]
-    n = 0
-    for k, row in enumerate(report.base_rows()):
-        if " + " not in row["combination"] and " - " not in row["combination"]:
-            continue
-        n += 1
-        # beyond any physical scale (as in the parameter table): the first term's scale
-        bound = UNDETERMINED_FACTOR * max(float(b.scales[b.independent[k]]), _UNIT_SCALE)
-        lines.append(f"| {row['combination']} | " + " | ".join(_base_cells(row, bound)) + " |")
-    if not n:
-        lines.append("| (none: every base parameter is a single parameter) | | | |")
-    return lines + _prior_note(report.result) + [""]
-
-
-def _base_cells(row: Mapping[str, object], bound: float) -> list[str]:
-    """One combination's identified, unconstrained and jackknife std cells; beyond
-    ``bound`` or not finite reads "undetermined"."""
-    cells = []
-    for key, fmt in (("identified", ".4g"), ("unconstrained", ".4g"), ("jackknife_std", ".3g")):
-        v = row[key]
-        if v is None:
-            cells.append("-")
-        elif not math.isfinite(v) or abs(v) > bound:
-            cells.append("undetermined")
-        else:
-            cells.append(format(v, fmt))
-    return cells
+    prior = _prior_note(report.result)
+    if prior:
+        lines.append("- " + prior[-1])
+    return lines + [""]
 
 
 def _prior_note(r) -> list[str]:
@@ -372,107 +286,137 @@ def _prior_note(r) -> list[str]:
     ]
 
 
-#: the parameter table's value columns. Bayesian JFA's posterior std and relevance stay in
-#: report.json and parameters.csv, not in the table: in simulation +-1.96 posterior stds cover
-#: the truth 2 % of the time, not 95 % (scripts/spread_coverage.py, docs/report.md),
-#: and a large relevance (the relevance prior's precision) does not mean the data find the
-#: parameter insignificant (the real Panda log's Coulomb friction: about 25 jackknife stds from
-#: 0 with <alpha> ~ 4e3)
-_VALUE_COLUMNS = ("identified", "unconstrained", "jackknife_std")
-
-#: what the jackknife's coverage is in simulation (scripts/spread_coverage.py, 2026-12-02:
-#: 50 logs per robot, the bias-corrected estimate, 20 blocks)
-SPREAD_NOTE = (
-    "in simulation +-1 and +-1.96 of the 20-block jackknife cover the truth 72-74 % and 94 % of "
-    "the time about the bias-corrected estimate (nominal 68 % and 95 %), 59-72 % and 83-94 % "
-    "without the correction; 5 blocks cover 68 % and 89-90 % (docs/report.md)"
-)
-
-
-def _parameters_section(
-    rows: list[Mapping[str, object]], flagged: Mapping[str, torch.Tensor]
-) -> list[str]:
-    """The section "Parameters": one row per parameter (``rows``:
-    `IdentificationReport.parameter_rows`), ``flagged`` entries
-    (`IdentificationReport.undetermined_entries`) read "undetermined", and a note on each kind
-    of entry that is not a number."""
+def _consistency_section(report) -> list[str]:
+    """The section "Physical consistency": the verdicts of both estimates, the check's summary
+    and the failing bodies (every body in the appendix)."""
+    c = report.consistency
+    n_bad = int((~c.body_ok).sum())
     lines = [
-        "## Parameters",
+        "## Physical consistency",
         "",
-        "identified: the physically consistent parameters (saved in `model.npz`); "
-        "unconstrained: the estimator's (less the sensor noise's bias where the header's bias "
-        "correction line says so); jackknife std: spread of the unconstrained "
-        f"estimate over delete-one-block refits ({SPREAD_NOTE}); description: the robot "
-        "file's value; data: what the data determine (see above: determined, combination, "
-        "poorly excited, zero column). Units: kg, kg m, "
-        "kg m^2, N m s/rad, N m.",
-        "",
-        "| parameter | identified | unconstrained | jackknife std | description | data |",
-        "|---|---|---|---|---|---|",
+        f"- physically consistent, identified: {verdict(c)}; unconstrained estimate: "
+        f"{verdict(report.consistency_unconstrained)}",
+        f"- per body (mass, inertia at the centre of mass, triangle inequalities, pseudo-inertia,"
+        f" friction; relative tolerance {c.tol:g}): physically consistent: "
+        f"{'yes' if c.ok else 'no'} ({n_bad} of {len(c.joint_names)} bodies fail)",
     ]
-    n_flagged = n_silent = 0
-    for i, row in enumerate(rows):
-        cells = _parameter_cells(row, i, flagged)
-        n_flagged += cells.count("undetermined")
-        n_silent += not row["excited"]
-        # "zero column": the data column's word for base_parameters' "not excited" (which
-        # also counts columns that are zero up to rounding)
-        cells.append({"not excited": "zero column"}.get(row["data"], row["data"] or "-"))
-        lines.append(f"| {row['parameter']} | " + " | ".join(cells) + " |")
-    if n_silent:
-        lines += [
-            "",
-            f"not excited ({n_silent} parameters): the parameter's regressor column is zero "
-            "in the data (the motion does not move its torque), so the data say nothing "
-            "about it; its identified value is the projection's alone.",
-        ]
-    if n_flagged:
-        lines += [
-            "",
-            f"undetermined ({n_flagged} entries): a value or spread beyond any physical "
-            f"scale, more than {UNDETERMINED_FACTOR:.0e} times the largest |value| of that "
-            "kind in the description (at least 1 kg, kg m, kg m^2, N m s/rad or N m), or "
-            "not finite: the data do not determine this parameter, only combinations of it "
-            "with others. Read no physical meaning into the value; the held-out errors above "
-            "say how well the model predicts torques.",
-        ]
-    return lines
+    if n_bad:
+        lines += ["", *consistency_table(c, failing_only=True)]
+    return lines + [""]
 
 
-def _parameter_cells(
-    row: Mapping[str, object], i: int, flagged: Mapping[str, torch.Tensor]
-) -> list[str]:
-    """Parameter ``i``'s value, spread and description cells: "not excited" / "-" for a zero
-    column, "undetermined" where flagged, "-" where there is no value."""
-    cells = []
-    for k in (*_VALUE_COLUMNS, "description"):
-        v = row[k]
-        if not row["excited"] and k in ("unconstrained", "jackknife_std"):
-            cells.append("not excited" if k == "unconstrained" else "-")
-        elif k in flagged and bool(flagged[k][i]):
-            cells.append("undetermined")
-        elif v is None:
-            cells.append("-")
-        else:
-            cells.append(f"{v:.4g}")
-    return cells
+def _noise_section(report) -> list[str]:
+    """The section "Noise": the spread between excitation periods per joint and signal (after
+    filtering), the joint weights and the training residual, each labelled with what it is."""
+    s, noise = report.settings, dict(report.noise)
+    joints = list(report.model.joint_names)
+    weights = noise.pop(_WEIGHTS_KEY, None)
+    periods = noise.pop("excitation periods used", None)
+    per_joint = {label: noise.pop(key) for key, label in _PER_JOINT.items() if key in noise}
+    if per_joint:
+        if weights is not None:
+            per_joint["joint weight (mean 1)"] = weights
+        lines = [
+            f"## Noise: std between the {periods} excitation periods of the training data "
+            f"({_filtered(s)}), and joint weights",
+            "",
+            "| joint | " + " | ".join(per_joint) + " |",
+            "|---" * (1 + len(per_joint)) + "|",
+        ]
+        for j, joint in enumerate(joints):
+            cells = ["-" if v[j] is None else g3(v[j]) for v in per_joint.values()]
+            lines.append(f"| {joint} | " + " | ".join(cells) + " |")
+        lines.append("")
+    else:
+        lines = ["## Noise", ""]
+    if weights is not None and "joint weight (mean 1)" not in per_joint:
+        listed = ", ".join(
+            f"{j} {'-' if w is None else g3(w)}" for j, w in zip(joints, weights, strict=True)
+        )
+        lines.append(f"- joint weights (weighted least squares, mean 1): {listed}")
+    for key, value in noise.items():
+        lines.append(f"- {_noise_label(key, s, weights is not None)}: {_number(value)}")
+    return lines + [""]
+
+
+_WEIGHTS_KEY = "joint weights (weighted least squares, mean 1)"
+#: ``report.json``'s per-joint noise keys -> the noise table's column headers
+_PER_JOINT = {
+    "q noise std per joint, rad": "q, rad",
+    "qd noise std per joint, rad/s": "qd, rad/s",
+    "qdd noise std per joint, rad/s^2": "qdd, rad/s^2",
+    "torque noise std per joint, N m": "torque, N m",
+}
+
+
+def _noise_label(key: str, settings: Mapping[str, object], weighted: bool) -> str:
+    """A noise entry's label with what it is of: filtered, weighted, units."""
+    filtered = _filtered(settings)
+    if key.startswith("training residual RMS"):
+        if weighted:
+            return (
+                f"training residual RMS of the weighted equations (torque {filtered}, each "
+                "joint's residual times its weight)"
+            )
+        return f"training residual RMS, N m (torque {filtered})"
+    if key.startswith("estimator output noise"):
+        return f"{key} (of the training equations{', weighted' if weighted else ''})"
+    return key
+
+
+def _number(value) -> str:
+    """A noise value, 3 significant digits (lists joined, None as "-")."""
+    if isinstance(value, list):
+        return ", ".join("-" if x is None else g3(x) for x in value)
+    if isinstance(value, float):
+        return g3(value)
+    return str(value)
+
+
+def _details_section(report) -> list[str]:
+    """The section "How it was identified": the log, the preparation, the model, the estimator
+    and the command line."""
+    model, s, r = report.model, report.settings, report.result
+    line, _ = convergence(r.estimator)
+    rest = [
+        f"`{Path(str(x['log'])).name}` {x['rest_dropped_s'][0]:.3g} s at the start, "
+        f"{x['rest_dropped_s'][1]:.3g} s at the end"
+        for x in s.get("logs") or []
+        if any(x.get("rest_dropped_s") or ())
+    ]
+    optional = [
+        ("data", s.get("preparation")),
+        ("cut-off", s.get("cutoff")),
+        ("armature", s.get("armature")),
+        ("rest dropped (the robot standing still)", "; ".join(rest)),
+        ("bias correction", s.get("bias_correction")),
+    ]
+    return [
+        "## How it was identified",
+        "",
+        (f"- log: `{s['log']}`; " if s.get("log") else "- ")
+        + f"{r.n_samples} samples for identification, {report.validation.n_samples} held out",
+        *(f"- {k}: {v}" for k, v in optional if v),
+        f"- model: {model.n_dof} joints, {model.n_params} parameters, friction "
+        f"{', '.join(model.friction) or 'none'}"
+        + (
+            f" (Coulomb as tanh(qd / {model.coulomb_velocity:g} rad/s))"
+            if model.coulomb_velocity and "coulomb" in model.friction
+            else ""
+        )
+        + _transmission_line(model),
+        f"- estimator: `{estimator_text(r.estimator)}`" + _noise_mode(s, r.estimator),
+        f"- convergence: {line}",
+        *([f"- reproduce: `{s['command']}`"] if s.get("command") else []),
+        "",
+    ]
 
 
 def _figures_section(images: Mapping[str, str] | None) -> list[str]:
     """The section "Figures": each image under its caption; nothing without images."""
     if not images:
         return []
-    lines = ["", "## Figures", ""]
-    for caption, rel in images.items():
-        lines += [f"![{caption}]({rel})", ""]
-    return lines
-
-
-def _reproduce_section(settings: Mapping[str, object]) -> list[str]:
-    """The section "Reproduce": the command line that wrote the report; nothing without one."""
-    if not settings.get("command"):
-        return []
-    return ["", "## Reproduce", "", "```", str(settings["command"]), "```"]
+    return ["## Figures", "", *(f"![{c}]({rel})" for c, rel in images.items()), ""]
 
 
 def _transmission_line(model) -> str:

@@ -1,21 +1,27 @@
-"""A report a person can read: what was identified, how far to trust it, how well it predicts.
+"""A report a person can read: is the identified model good, what to do next, and the numbers
+behind that.
 
 `make_report` takes an `IdentificationResult` and held-out data and measures what a user needs
 before putting the identified model in a controller:
 
-* per parameter: the consistent (projected) value, the estimator's unconstrained value, its
-  spread (the delete-one-block jackknife; Bayesian JFA's posterior standard deviation and
-  relevance only in the rows and ``report.json``, not in the markdown table: in simulation
-  neither measures the error, docs/report.md), and the description's (CAD) value;
-* the physical-consistency check (`torchjfa.physical.check`) of both estimates;
+* the verdict (`IdentificationReport.judge`): the held-out torque error against the
+  description's, physical consistency, how many parameters the data do not determine, the
+  warnings, and the next step, by rules on these numbers (`torchjfa._report_verdict`);
 * held-out torque nMSE and RMS error per joint for the identified model, the unconstrained
   estimate and the description's parameters;
+* per parameter: what the data determine (`torchjfa.physical.base_parameters`), the consistent
+  (projected) value and what fixes it (data, description prior, projection), the estimator's
+  unconstrained value, its delete-one-block jackknife spread (Bayesian JFA's posterior
+  standard deviation and relevance too, in ``report.json`` and ``parameters.csv`` only: neither
+  measures the error), and the description's (CAD) value;
+* the physical-consistency check (`torchjfa.physical.check`) of both estimates;
 * noise: the estimator's output noise and, with a periodic excitation, the spread between
   periods of positions, velocities, accelerations and torques.
 
 `IdentificationReport.write` puts it in a folder: ``model.npz`` (`torchjfa.io.load_identified`
 reads it), ``validation.npz`` (the held-out q, qd, qdd, tau the figures were computed on),
-``parameters.csv``, ``report.json``, ``report.md`` and the PNG figures.
+``parameters.csv``, ``report.json``, ``report.md`` (short; ``appendix=True`` adds the long
+tables) and the PNG figures.
 """
 
 from __future__ import annotations
@@ -31,11 +37,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ._report_appendix import appendix as appendix_lines
 from ._report_figures import parameters_figure, torques_figure
-from ._report_markdown import (
+from ._report_markdown import report_markdown
+from ._report_verdict import Verdict, make_verdict
+from ._report_words import (
     UNDETERMINED_FACTOR,
+    convergence,
     estimator_text,
-    report_markdown,
     undetermined,
     verdict,
 )
@@ -47,6 +56,7 @@ from .physical import BaseParameters, ConsistencyReport, base_parameters, check
 __all__ = [
     "TorqueFit",
     "IdentificationReport",
+    "Verdict",
     "make_report",
     "predicted_torques",
     "torque_errors",
@@ -104,6 +114,22 @@ def _fit(result: IdentificationResult, log: JointLog, theta: torch.Tensor) -> To
     return TorqueFit(nmse=nmse, rms=rms, predicted=pred)
 
 
+#: the columns of ``parameters.csv``, in order (`IdentificationReport.csv_rows`)
+_CSV_COLUMNS = (
+    "parameter",
+    "identified",
+    "determined",
+    "source",
+    "data",
+    "description",
+    "unconstrained",
+    "jackknife_std",
+    "posterior_std",
+    "relevance",
+    "excited",
+)
+
+
 def _numbers(v) -> list:
     """A tensor as a JSON list (NaN and inf become None)."""
     out = []
@@ -146,9 +172,50 @@ class IdentificationReport:
     @property
     def excited(self) -> torch.Tensor:
         """``(n_params,)`` bool: the parameter's regressor column is not zero in the training
-        data. Where it is, the data say nothing about the parameter (its unconstrained value
-        is 0 by convention and the identified one comes from the projection alone)."""
-        return torch.diagonal(self.result.moments.xtx) > 0
+        data (zero up to rounding: `base_parameters`' "not excited", so that every count of
+        the report agrees). Where it is, the data say nothing about the parameter (its
+        unconstrained value is 0 by convention and the identified one comes from the
+        projection alone)."""
+        if self.base is not None:
+            return torch.tensor([s != "not excited" for s in self.base.status])
+        return torch.diagonal(self.result.moments.xtx).cpu() > 0
+
+    def statuses(self) -> tuple[str, ...]:
+        """Per parameter, what the data determine (`torchjfa.physical.BaseParameters.status`:
+        ``"determined"``, ``"combination"``, ``"poorly excited"``, ``"not excited"``)."""
+        if self.base is not None:
+            return tuple(self.base.status)
+        return ("not excited",) * self.model.n_params
+
+    def sources(self) -> list[str]:
+        """Per parameter, what fixes its identified value: ``"data"`` (determined by the data
+        alone); for a parameter in a combination or poorly excited, ``"data+description"``
+        (the data fix the combination, the description prior the rest), ``"data+projection"``
+        (no description prior) or ``"estimator"`` (no projection); for a parameter not
+        excited, ``"description"`` (pulled towards it by the description prior),
+        ``"projection"`` (the consistency projection alone) or ``"none"`` (no projection: no
+        value)."""
+        r = self.result
+        projected, prior = r.projection is not None, bool(r.prior_weight)
+        silent = "description" if prior else "projection"
+        words = {
+            "determined": "data",
+            "not excited": silent if projected else "none",
+        }
+        partly = f"data+{silent}" if projected else "estimator"
+        return [words.get(s, partly) for s in self.statuses()]
+
+    def warnings(self) -> list[str]:
+        """Everything the user should know: the identification's warnings
+        (``settings["warnings"]``) and the estimator's when it did not converge."""
+        _, late = convergence(self.result.estimator)
+        return [str(w) for w in self.settings.get("warnings", ())] + ([late] if late else [])
+
+    def judge(self, model_path: str = "model.npz") -> Verdict:
+        """The verdict (`torchjfa._report_verdict.make_verdict`): held-out error against the
+        description's, consistency, what the data leave undetermined, the warnings and the
+        next steps (the load step names ``model_path``)."""
+        return make_verdict(self, model_path)
 
     def _columns(self) -> dict[str, torch.Tensor | None]:
         """The parameter table's columns as float64 tensors (NaN and inf kept), None where the
@@ -184,15 +251,35 @@ class IdentificationReport:
     def parameter_rows(self) -> list[dict[str, object]]:
         """One dict per parameter: name, identified, unconstrained, jackknife_std,
         posterior_std, relevance, description (None where not available), excited (see
-        `excited`)."""
+        `excited`), data (`statuses`), determined (the data determine it alone) and source
+        (`sources`). The numbers are the estimators' as they are (0 for a parameter not
+        excited); ``parameters.csv`` leaves those empty."""
         cols = {k: None if v is None else _numbers(v) for k, v in self._columns().items()}
         excited = self.excited.tolist()
+        sources = self.sources()
         rows = []
         for i, name in enumerate(self.model.parameter_names):
             row: dict[str, object] = {"parameter": name}
             row.update({k: None if v is None else v[i] for k, v in cols.items()})
             row["excited"] = bool(excited[i])
             row["data"] = None if self.base is None else self.base.status[i]
+            row["determined"] = row["data"] == "determined"
+            row["source"] = sources[i]
+            rows.append(row)
+        return rows
+
+    def csv_rows(self) -> list[dict[str, object]]:
+        """The rows of ``parameters.csv``: `parameter_rows` with what the data do not give
+        left empty (None): the estimates and spreads of a parameter not excited, and its
+        identified value where nothing fixed it (source ``"none"``)."""
+        rows = []
+        for row in self.parameter_rows():
+            row = {k: row[k] for k in _CSV_COLUMNS}
+            if not row["excited"]:
+                for k in ("unconstrained", "jackknife_std", "posterior_std", "relevance"):
+                    row[k] = None
+            if row["source"] == "none":
+                row["identified"] = None
             rows.append(row)
         return rows
 
@@ -259,6 +346,7 @@ class IdentificationReport:
                 "combinations": self.base_rows(),
             },
             "prior_weight": self.result.prior_weight,
+            "verdict": self.judge().summary(),
         }
 
     # ------------------------------------------------------------------------- figures
@@ -306,13 +394,32 @@ class IdentificationReport:
         self.settings["description_file"] = "; ".join([f"`{n}`" for n in names[::-1]] + failed)
         return written
 
-    def markdown(self, images: Mapping[str, str] | None = None) -> str:
-        """The report as Markdown (``images``: caption -> relative PNG path), one section after
-        the other (`torchjfa._report_markdown.report_markdown`)."""
-        return report_markdown(self, images)
+    def markdown(
+        self,
+        images: Mapping[str, str] | None = None,
+        *,
+        folder: str | os.PathLike | None = None,
+        appendix: bool = False,
+    ) -> str:
+        """The report as Markdown: the verdict, then one short section after the other
+        (`torchjfa._report_markdown.report_markdown`).
 
-    def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
-        """Write the model, data, tables, figures and Markdown report into ``out_dir``.
+        Args:
+            images: caption -> relative PNG path of each figure.
+            folder: the report's folder (the verdict's load step names its ``model.npz``).
+            appendix: end with the long tables (every parameter, the base-parameter
+                combinations, each log, each body; `torchjfa._report_appendix.appendix`).
+        """
+        text = report_markdown(self, images, folder=folder, appendix=appendix)
+        if appendix:
+            text += "\n".join(appendix_lines(self)) + "\n"
+        return text
+
+    def write(
+        self, out_dir: str | os.PathLike, *, plots: bool = True, appendix: bool = False
+    ) -> dict[str, Path]:
+        """Write the model, data, tables, figures and Markdown report into ``out_dir``
+        (``appendix``: the long tables at the end of ``report.md``, see `markdown`).
 
         Returns:
             name -> path of each file written.
@@ -349,11 +456,10 @@ class IdentificationReport:
             joint_names=np.array(v.joint_names, dtype=np.str_),
             **{k: x.numpy() for k, x in v.signals().items()},
         )
-        rows = self.parameter_rows()
         with open(paths["parameters"], "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w = csv.DictWriter(fh, fieldnames=list(_CSV_COLUMNS))
             w.writeheader()
-            w.writerows({k: "" if x is None else x for k, x in r.items()} for r in rows)
+            w.writerows({k: "" if x is None else x for k, x in r.items()} for r in self.csv_rows())
         images = {}
         if plots:
             paths["torques"] = out / "torques.png"
@@ -366,7 +472,7 @@ class IdentificationReport:
             }
         with open(paths["json"], "w") as fh:
             json.dump(self.summary(), fh, indent=1, default=str)
-        paths["markdown"].write_text(self.markdown(images))
+        paths["markdown"].write_text(self.markdown(images, folder=out, appendix=appendix))
         return paths
 
 
