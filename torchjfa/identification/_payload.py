@@ -16,8 +16,10 @@ regressor), and
   e`` (least squares on the stacked rows): what the robot's model gets wrong is common to both
   kinds and cancels in ``pi_L``, and the runs need not be aligned in time.
 
-Either estimate is then made physically consistent: the closest payload in the data's metric
-(``Z^T Z``) with a positive semidefinite pseudo-inertia, inside ``bounds`` when the user gives a
+Both fits weigh each joint's rows by ``1 / sigma_j``, ``sigma_j`` the joint's residual level in
+an unweighted fit first (`_joint_weights`). Either estimate is then made physically consistent:
+the closest payload in the data's (weighted) metric ``Z^T W Z`` with a positive semidefinite
+pseudo-inertia, inside ``bounds`` when the user gives a
 region the payload lies in (`Bounds`: a sphere or a box in the link's frame), a semidefinite
 program (`consistent_payload`). Spreads come from a delete-one-block jackknife over contiguous
 blocks of the logs; a parameter whose spread is large against its scale is marked as not
@@ -58,6 +60,8 @@ PARAMETERS = ("m", "hx", "hy", "hz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 DETERMINED_SPREAD = 0.2
 #: contiguous blocks of the logs for the jackknife spreads
 BLOCKS = 10
+#: each joint's rows weighted by its residual level (`_joint_weights`)
+WEIGHTED = True
 
 
 @dataclass(frozen=True)
@@ -342,9 +346,12 @@ def identify_payload(
         y = torch.cat([tau, tau_u])
         which = torch.cat([which, _block_of_rows(Yu.shape[0], model.n_dof)])
         how = "loaded and unloaded runs together, the robot's parameters fitted again"
+    w = _joint_weights(X, y, model.n_dof) if WEIGHTED else torch.ones(X.shape[0], dtype=X.dtype)
+    X, y = X * w[:, None], y * w
     pi_hat = _lstsq(X, y)[:10]
     std = _jackknife(X, y, which)
-    metric = Z.T @ Z
+    Zw = Z * w[: Z.shape[0], None]
+    metric = Zw.T @ Zw
     pi = consistent_payload(pi_hat, metric, bounds)
     mass, com, inertia = inertial_from_vector(pi)
     Yh, tau_h = _rows(model, held)
@@ -355,6 +362,19 @@ def identify_payload(
         link, float(mass), com, inertia, pi, pi_hat, std, _determined(pi, std, X), bounds,
         without.pow(2).mean(0).sqrt(), with_.pow(2).mean(0).sqrt(), how,
     )  # fmt: skip
+
+
+def _joint_weights(X: torch.Tensor, y: torch.Tensor, n_dof: int) -> torch.Tensor:
+    """``(n_rows,)`` each row's weight ``1 / sigma_j``: ``sigma_j^2`` the residual variance of
+    its joint's rows in an unweighted fit (rows are sample-major, ``n_dof`` per sample), so
+    that quiet joints (often the wrist's, which see a payload's inertia best) are not drowned
+    by noisy ones."""
+    r = y - X @ _lstsq(X, y)
+    joint = torch.arange(X.shape[0]) % n_dof
+    var = torch.zeros(n_dof, dtype=X.dtype).index_add_(0, joint, r * r)
+    var = var / torch.bincount(joint, minlength=n_dof).to(X.dtype)
+    var = var.clamp_min(1e-12 * float(var.max()) if float(var.max()) > 0 else 1e-300)
+    return var.rsqrt()[joint]
 
 
 def _block_of_rows(n_rows: int, n_dof: int) -> torch.Tensor:
