@@ -25,6 +25,7 @@ SCRIPTS = (
     "sim_bjfa_vs_ols",
     "real_ur10e_gains",
     "sim_payload_excitation",
+    "real_refine",
 )
 STAMP = {"machine": "a test machine", "date": "today"}
 

@@ -203,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_evaluate(sub)
     _add_payload(sub)
+    from ._cli_refine import add_refine, cmd_refine
+
+    add_refine(sub, _add_reading).set_defaults(func=lambda args: cmd_refine(args, _reading))
     return parser
 
 

@@ -6,9 +6,12 @@ Use this package to rebuild the paper's robot experiments without the robots:
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
 of the robot tracking a periodic excitation, and `computed_torque` evaluates identified
 parameters in closed loop; `replay` rolls identified (`mujoco_model`) and description
-(`description_model`) models out open loop on a real log's measured torques. `regressor_noise` and `PeriodNoise` (the noise from the repeated
-periods) live in `torchjfa.data` and are re-exported here; `load_log` reads a `SimulatedLog`
-file as one and any other log file as a `torchjfa.data.JointLog`.
+(`description_model`) models out open loop on a real log's measured torques, and `refine` fits
+their friction loss, damping, armature and a torque delay to such rollouts with `mujoco.sysid`
+(the ``sysid`` extra), keeping what held-out rollouts confirm. `regressor_noise` and
+`PeriodNoise` (the noise from the repeated periods) live in `torchjfa.data` and are
+re-exported here; `load_log` reads a `SimulatedLog` file as one and any other log file as a
+`torchjfa.data.JointLog`.
 """
 
 from ..data import PeriodNoise as PeriodNoise
@@ -25,6 +28,8 @@ from ._generate import generate_log as generate_log
 from ._log import SensorNoise as SensorNoise
 from ._log import SimulatedLog as SimulatedLog
 from ._log import load_log as load_log
+from ._refine import Refinement as Refinement
+from ._refine import refine as refine
 from ._replay import HORIZONS as HORIZONS
 from ._replay import Replay as Replay
 from ._replay import description_model as description_model

@@ -134,6 +134,15 @@ class Replay:
         return fig
 
 
+def substeps(period: float, timestep: float) -> int:
+    """Physics steps per sample ``period``: the model's own ``timestep`` where the period holds
+    a whole number of them, else steps of at most `MAX_STEP`."""
+    own = period / timestep
+    if abs(own - round(own)) < 1e-6 * own and timestep <= MAX_STEP:
+        return round(own)
+    return max(1, math.ceil(period / MAX_STEP - 1e-9))
+
+
 def _addresses(mj: mujoco.MjModel, joints: Sequence[str]) -> tuple[list[int], list[int]]:
     qpos, dof = [], []
     for name in joints:
@@ -187,11 +196,7 @@ def replay(
     q, qd, tau = (x.numpy() for x in (log.q, log.qd, log.tau))
     position, velocity, diverged = {}, {}, {}
     for name, mj in models.items():
-        # the model's own step where the period holds a whole number of them, else steps of
-        # at most MAX_STEP
-        own = period / float(mj.opt.timestep)
-        whole = abs(own - round(own)) < 1e-6 * own and float(mj.opt.timestep) <= MAX_STEP
-        n_sub = round(own) if whole else max(1, math.ceil(period / MAX_STEP - 1e-9))
+        n_sub = substeps(period, float(mj.opt.timestep))
         mj.opt.timestep = period / n_sub
         qadr, dadr = _addresses(mj, log.joint_names)
         data = mujoco.MjData(mj)

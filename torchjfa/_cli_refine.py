@@ -1,0 +1,77 @@
+"""``torchjfa refine``: the identified model's joint terms refined on MuJoCo rollouts
+(`torchjfa.sim.refine`, the ``sysid`` extra), kept where held-out rollouts improve."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["add_refine", "cmd_refine"]
+
+
+def add_refine(sub, add_reading) -> argparse.ArgumentParser:
+    """The ``refine`` sub-command's parser (``add_reading`` adds the reading options)."""
+    p = sub.add_parser(
+        "refine",
+        help="refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
+        description="Start from the identified model's MJCF export and fit, per joint, MuJoCo's "
+        "friction loss, damping and armature (and with --delay one delay between the logged "
+        "torque and the joints) to open-loop rollouts on the training logs, with mujoco.sysid; "
+        "keep what rollouts on the --held-out logs confirm (per joint, then as a whole). Writes "
+        "refined.xml, refinement.json and refinement.md. Needs the sysid extra: "
+        'pip install "torchjfa[sysid]".',
+    )
+    p.add_argument("model", help="model.npz written by identify")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="logs to fit the rollouts on")
+    p.add_argument(
+        "--held-out",
+        nargs="+",
+        required=True,
+        metavar="LOG",
+        help="logs that judge the fit (not the identification's held-out part you report on)",
+    )
+    p.add_argument("--delay", action="store_true", help="also fit a torque delay, s")
+    p.add_argument("--out", default="refined", help="output folder")
+    add_reading(p)
+    return p
+
+
+def cmd_refine(args, reading) -> int:
+    """Run ``torchjfa refine`` (``reading(args)``: the reading `Options`)."""
+    from .data import DEFAULT_CUTOFF_HZ
+    from .identification._evaluate import _identified
+    from .identification._prepare import read_prepared, several
+    from .sim import refine
+
+    model, theta, stored = _identified(args.model)
+    options = reading(args)
+    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
+
+    def prepared(logs):
+        return [read_prepared(s, model, options, cutoff)[1] for s in several(logs)]
+
+    from .identification import IdentificationError
+
+    parameters = ("frictionloss", "damping", "armature") + (("delay",) if args.delay else ())
+    try:
+        result = refine(
+            model, theta, prepared(args.logs), prepared(args.held_out), parameters=parameters
+        )
+    except (ImportError, ValueError) as exc:  # the missing extra, logs too short
+        raise IdentificationError(" ".join(str(exc).split())) from None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "refined.xml").write_text(result.mjcf, encoding="utf-8")
+    (out / "refinement.json").write_text(json.dumps(result.summary(), indent=1))
+    lines = result.lines()
+    (out / "refinement.md").write_text(
+        "# Refinement on MuJoCo rollouts\n\n```text\n" + "\n".join(lines) + "\n```\n"
+    )
+    for line in lines:
+        print(line)
+    kept = ", ".join(result.accepted) or "nothing (the identified values stay)"
+    print(f"kept: {kept}; written: {out / 'refined.xml'}, refinement.json, refinement.md")
+    sys.stdout.flush()
+    return 0
