@@ -44,12 +44,13 @@ from .._threads import single_thread
 from ..data import DEFAULT_CUTOFF_HZ
 from ..dynamics import ParameterLayout
 from ..physical._convex import (
-    _SETTINGS,
     MARGIN,
     _body_lmis,
     _cvxpy,
     _friction_signs,
     _variable_scales,
+    psd_factor,
+    solve_quietly,
 )
 from ._evaluate import _identified
 from ._options import IdentificationError, IdentificationWarning, Options
@@ -182,8 +183,7 @@ class _Fit:
         H = 0.5 * (H + H.T)
         b = b * S
         unit = max(float(np.trace(H[:m, :m])) / m, 1e-300)
-        w_eig, V = np.linalg.eigh(H / unit)
-        R = (V * np.sqrt(np.clip(w_eig, 0.0, None))).T
+        R = psd_factor(H / unit)
         z = cp.Variable(m + d)
         cost = (
             cp.sum_squares(R @ z)
@@ -202,9 +202,7 @@ class _Fit:
         if signs:
             constraints.append(z[signs] >= 0)
         problem = cp.Problem(cp.Minimize(cost), constraints)
-        with warnings.catch_warnings():  # the status says it
-            warnings.simplefilter("ignore", UserWarning)
-            problem.solve(solver="CLARABEL", **_SETTINGS["CLARABEL"])
+        solve_quietly(cp, problem)
         if problem.status not in ("optimal", "optimal_inaccurate") or z.value is None:
             raise IdentificationError(
                 f"the drive-gain fit did not converge (solver status {problem.status})"

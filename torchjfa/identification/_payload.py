@@ -425,11 +425,9 @@ def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Te
         IdentificationError: if no payload fits inside the bounds (e.g. they exclude every
             mass) or the solver fails.
     """
-    import warnings
-
     import numpy as np
 
-    from ..physical._convex import _SETTINGS, MARGIN, _cvxpy
+    from ..physical._convex import MARGIN, _cvxpy, psd_factor, solve_quietly
 
     cp = _cvxpy()
     m_s, L = _scale(pi_hat)
@@ -439,8 +437,7 @@ def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Te
     B = np.stack([T @ basis[k] @ T * S[k] / m_s for k in range(10)]).reshape(10, 16).T
     H = S[:, None] * metric.numpy() * S[None, :]
     unit = max(float(np.trace(H)) / 10, 1e-300)
-    w, V = np.linalg.eigh(0.5 * (H + H.T) / unit)
-    R = (V * np.sqrt(np.clip(w, 0.0, None))).T
+    R = psd_factor(H / unit)
     x = cp.Variable(10)
     x_hat = pi_hat.numpy() / S
     J = cp.reshape(B @ x, (4, 4), order="C")
@@ -450,9 +447,7 @@ def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Te
         constraints.append(coef @ x >= 0)
     cost = cp.sum_squares(R @ (x - x_hat)) + 1e-8 * cp.sum_squares(x)
     problem = cp.Problem(cp.Minimize(cost), constraints)
-    with warnings.catch_warnings():  # the status says it
-        warnings.simplefilter("ignore", UserWarning)
-        problem.solve(solver="CLARABEL", **_SETTINGS["CLARABEL"])
+    solve_quietly(cp, problem)
     if problem.status not in ("optimal", "optimal_inaccurate") or x.value is None:
         raise IdentificationError(
             f"no consistent payload {'inside ' + str(bounds) if bounds else ''} fits the "

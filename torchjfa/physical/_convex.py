@@ -132,6 +132,24 @@ def _body_lmis(cp, theta, layout, parametrization: str, scales: torch.Tensor, ma
     return constraints
 
 
+def solve_quietly(cp, problem, solver: str = "CLARABEL") -> str:
+    """Solve the cvxpy ``problem`` with ``solver`` at its `_SETTINGS`, its inaccuracy warnings
+    silenced (the status returned says it); ``"solver_error"`` where the solver failed."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=solver, **_SETTINGS.get(solver, {}))
+    except cp.error.SolverError:
+        return "solver_error"
+    return problem.status
+
+
+def psd_factor(H: np.ndarray) -> np.ndarray:
+    """``R`` with ``R^T R`` the positive semidefinite part of the symmetric part of ``H``."""
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    return (V * np.sqrt(np.clip(w, 0.0, None))).T
+
+
 def _friction_signs(layout) -> list[int]:
     """Indices of theta that are friction or armature terms and must be >= 0."""
     _, friction = layout.split(torch.arange(layout.n_params))
@@ -188,12 +206,8 @@ def solve_normalised(
         unit = g if g > 0 else 1.0
         cost = cp.sum_squares(factor.T @ (x - x_star.numpy())) / unit
         prog = cp.Problem(cp.Minimize(cost), constraints)
-        try:
-            with warnings.catch_warnings():  # "optimal_inaccurate" is judged below
-                warnings.simplefilter("ignore", UserWarning)
-                prog.solve(solver=solver, **_SETTINGS.get(solver, {}))
-        except cp.error.SolverError as exc:
-            raise ValueError(f"the semidefinite solver {solver} failed: {exc}") from None
+        if solve_quietly(cp, prog, solver) == "solver_error":
+            raise ValueError(f"the semidefinite solver {solver} failed")
         if prog.status not in ("optimal", "optimal_inaccurate") or y.value is None:
             raise ValueError(f"the semidefinite solver {solver} stopped with status {prog.status}")
         iters += int(getattr(prog.solver_stats, "num_iters", None) or 0)
