@@ -181,7 +181,7 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     with page.recording("real_refine", "real_refine", args.write_docs, argv, smoke=args.smoke):
         try:
-            run(smoke=args.smoke)
+            run(smoke=args.smoke, out=sys.stdout)
         except ImportError as exc:  # without the extra
             print(f"no refinement: {exc}")
     return 0
