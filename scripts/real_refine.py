@@ -28,20 +28,17 @@ cut-off, the measured torque unfiltered).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 import time
 import warnings
 from pathlib import Path
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+import torch
 
-import torch  # noqa: E402
-
-import torchjfa  # noqa: E402
-from torchjfa.identification import IdentificationWarning, evaluate  # noqa: E402
-from torchjfa.sim import refine  # noqa: E402
+import torchjfa
+from torchjfa.identification import IdentificationWarning, evaluate
+from torchjfa.sim import refine
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _benchmarks_page as page  # noqa: E402
