@@ -15,15 +15,17 @@ linear in ``x = (theta, pi, s)``, the gains ``K = s K0``. The robot's parameters
 fitted again with the gains (the identified model gives the structure, the units and a tie-break
 for what the data leave free), the payload's centre of mass and inertia are unknown, and every
 body (the payload's too) keeps a positive semidefinite pseudo-inertia, friction >= 0 and
-``s > 0``: a semidefinite program (cvxpy, Clarabel).
+``s > 0`` (matrix inequalities, solved by cvxpy with Clarabel).
 
 Least squares on the equation error ``s_j u_j - Y_j theta - ...`` would weigh joint ``j`` by
 ``s_j^2`` and so prefer small gains: shrinking a joint's gain with the parameters only its own
 row sees shrinks that residual. The measured quantity is the current, whose error is
 ``u_j - (Y_j theta + Z_j pi) / s_j``; the fit minimises that error, each joint weighed by its
-residual level, by alternating two exact steps that each lower it: the parameters for the last
-scales (the semidefinite program, ``s`` fixed) and each joint's scale for the last parameters
-(one-dimensional least squares in ``1 / s_j``, closed form), until the scales stop moving.
+residual level, over ``(theta, pi, g = 1 / s)`` by damped Gauss-Newton steps: the error is
+bilinear in the parameters and ``g``, so each step linearises it about the last point and
+solves the semidefinite program with a Levenberg-Marquardt damping on ``g``, until the gains
+stop moving (alternating between the two blocks crawls along the valley where a gain and its
+own row's parameters trade off).
 Along a direction the logs leave free (a joint's gain with the parameters only its own row
 sees) the error is flat, and the tie-break keeps the identified robot's values there.
 
@@ -61,7 +63,7 @@ __all__ = ["DETERMINED_SPREAD", "DriveGains", "identify_drive_gains"]
 
 #: a gain whose jackknife spread exceeds this share of it is reported as not determined
 DETERMINED_SPREAD = 0.1
-#: the reweighting stops when no scale moves by more than this (relative)
+#: the fit stops when no gain moves by more than this in a step (relative)
 _TOL = 1e-6
 _MAX_ROUNDS = 100
 #: the tie-break towards the identified robot's parameters, times the cost's mean curvature
@@ -86,7 +88,7 @@ class DriveGains:
             mass).
         rms: ``(n_dof,)`` the fit's residual RMS per joint, ``|u_j - p_j / s_j|``, in the
             logs' units (the current times the nominal gain; N m for torque logs).
-        rounds: reweighting rounds until the scales stopped moving.
+        rounds: Gauss-Newton steps until the gains stopped moving.
     """
 
     joint_names: tuple[str, ...]
