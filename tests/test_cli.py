@@ -145,6 +145,13 @@ def test_separate_validation_log_and_other_estimator(head_csv, tmp_path, capsys)
     assert all(p["relevance"] is None for p in report["parameters"])
     assert report["validation_samples"] < 2520
     assert "joint weights (weighted least squares, mean 1)" not in report["noise"]
+    assert "## Appendix" not in (out / "report.md").read_text()
+    code, _, err = _identify(
+        capsys, "head", head_csv, "--validation-log", vpath, "--estimator", "ols", "--out",
+        tmp_path / "a", "--weighting", "none", "--appendix", "--no-plots", *FAST_OLS,
+    )  # fmt: skip
+    assert code == 0, err
+    assert "## Appendix" in (tmp_path / "a" / "report.md").read_text()
 
 
 def test_compiled_regressor_gives_the_same_fit(head_csv, tmp_path, capsys, monkeypatch):

@@ -117,7 +117,7 @@ def cmd_identify(args) -> int:
             validation_log=args.validation_log,
             settings={"command": command},
         )
-    paths = ident.write(args.out, plots=not args.no_plots)
+    paths = ident.write(args.out, plots=not args.no_plots, appendix=args.appendix)
     for line in ident.headline():
         print(line)
     est = ident.result.estimator
@@ -168,6 +168,12 @@ def add_identify(sub) -> argparse.ArgumentParser:
         help="hold out these logs instead of the end of each log",
     )
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    p.add_argument(
+        "--appendix",
+        action="store_true",
+        help="end report.md with the long tables (every parameter, the base-parameter "
+        "combinations, each log, each body); they are in parameters.csv and report.json anyway",
+    )
     p.add_argument("--smoke", action="store_true",
                    help=f"quick check: the first {SMOKE_SECONDS:g} s only")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -73,7 +73,8 @@ def report_markdown(
             "the long tables: the appendix below."
             if appendix
             else "the long tables (parameters, base-parameter combinations, per log, per body): "
-            "`IdentificationReport.write(folder, appendix=True)`."
+            "`torchjfa identify ... --appendix` or `IdentificationReport.write(folder, "
+            "appendix=True)`."
         ),
     ]
     return "\n".join(lines) + "\n"

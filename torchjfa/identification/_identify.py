@@ -90,9 +90,12 @@ class Identification:
         `torchjfa.identification.IdentificationResult.inverse_dynamics`)."""
         return self.result.inverse_dynamics(projected=projected, trainable=trainable)
 
-    def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
-        """Write the report's folder (`IdentificationReport.write`); returns the paths."""
-        return self.report.write(out_dir, plots=plots)
+    def write(
+        self, out_dir: str | os.PathLike, *, plots: bool = True, appendix: bool = False
+    ) -> dict[str, Path]:
+        """Write the report's folder (`IdentificationReport.write`; ``appendix``: the long
+        tables at the end of ``report.md``); returns the paths."""
+        return self.report.write(out_dir, plots=plots, appendix=appendix)
 
     def headline(self) -> list[str]:
         """Two lines: what was identified, and how it predicts the held-out torques."""
