@@ -44,7 +44,6 @@ import torch
 
 from .._threads import single_thread
 from ..data import DEFAULT_CUTOFF_HZ
-from ..dynamics import ParameterLayout
 from ..physical._convex import (
     MARGIN,
     _body_lmis,
@@ -56,7 +55,7 @@ from ..physical._convex import (
 )
 from ._evaluate import _identified
 from ._options import IdentificationError, IdentificationWarning, Options
-from ._payload import payload_regressor
+from ._payload import ONE_BODY, payload_regressor
 from ._prepare import read_prepared, several
 
 __all__ = ["DETERMINED_SPREAD", "DriveGains", "identify_drive_gains"]
@@ -196,7 +195,7 @@ class _Fit:
         scaled = torch.as_tensor(self.scales)
         constraints = [
             *_body_lmis(cp, z[:p], model.layout, "log-cholesky", scaled[:p], MARGIN),
-            *_body_lmis(cp, z[p:m], _PAYLOAD, "log-cholesky", scaled[p:m], MARGIN),
+            *_body_lmis(cp, z[p:m], ONE_BODY, "log-cholesky", scaled[p:m], MARGIN),
             z[p] == self.mass / self.scales[p],
             z[m:] >= 1e-3 - 1.0,  # g stays positive
         ]
@@ -239,9 +238,6 @@ class _Fit:
             stacklevel=3,
         )
         return a, 1.0 / g, sigma2, rounds
-
-
-_PAYLOAD = ParameterLayout(("payload",), ())
 
 
 def _errors(G: np.ndarray, a: np.ndarray, g: np.ndarray) -> np.ndarray:

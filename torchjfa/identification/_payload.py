@@ -36,7 +36,7 @@ from pathlib import Path
 import torch
 
 from ..data import DEFAULT_CUTOFF_HZ, JointLog
-from ..dynamics import RigidBodyModel
+from ..dynamics import ParameterLayout, RigidBodyModel
 from ..dynamics._parameters import inertial_from_vector, pseudo_inertia
 from ..physical import inertial_from_pseudo_inertia
 from ._evaluate import _identified
@@ -54,6 +54,8 @@ __all__ = [
 ]
 
 
+#: the layout of one body's 10 parameters and no joint terms (the payload's)
+ONE_BODY = ParameterLayout(("payload",), ())
 #: the names of the payload's 10 parameters, in order
 PARAMETERS = ("m", "hx", "hy", "hz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 #: a parameter whose spread exceeds this share of its scale is reported as not determined
@@ -427,21 +429,18 @@ def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Te
     """
     import numpy as np
 
-    from ..physical._convex import MARGIN, _cvxpy, psd_factor, solve_quietly
+    from ..physical._convex import MARGIN, _body_lmis, _cvxpy, psd_factor, solve_quietly
 
     cp = _cvxpy()
     m_s, L = _scale(pi_hat)
     S = np.array([m_s, *(m_s * L,) * 3, *(m_s * L * L,) * 6])
     basis = pseudo_inertia(torch.eye(10, dtype=torch.float64)).numpy()  # (10, 4, 4)
-    T = np.diag([1 / L, 1 / L, 1 / L, 1.0])
-    B = np.stack([T @ basis[k] @ T * S[k] / m_s for k in range(10)]).reshape(10, 16).T
     H = S[:, None] * metric.numpy() * S[None, :]
     unit = max(float(np.trace(H)) / 10, 1e-300)
     R = psd_factor(H / unit)
     x = cp.Variable(10)
     x_hat = pi_hat.numpy() / S
-    J = cp.reshape(B @ x, (4, 4), order="C")
-    constraints = [0.5 * (J + J.T) >> MARGIN * np.eye(4)]
+    constraints = _body_lmis(cp, x, ONE_BODY, "log-cholesky", torch.from_numpy(S), MARGIN)
     for Q in [] if bounds is None else bounds.matrices():
         coef = np.array([np.trace(basis[k] @ Q) for k in range(10)]) * S / (m_s * L * L)
         constraints.append(coef @ x >= 0)
