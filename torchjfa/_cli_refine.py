@@ -40,14 +40,12 @@ def add_refine(sub, add_reading) -> argparse.ArgumentParser:
 
 def cmd_refine(args, reading) -> int:
     """Run ``torchjfa refine`` (``reading(args)``: the reading `Options`)."""
-    from .data import DEFAULT_CUTOFF_HZ
     from .identification._evaluate import _identified
     from .identification._prepare import read_prepared, several
     from .sim import refine
 
-    model, theta, stored = _identified(args.model)
+    model, theta, cutoff = _identified(args.model)
     options = reading(args)
-    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
 
     def prepared(logs):
         return [read_prepared(s, model, options, cutoff)[1] for s in several(logs)]

@@ -160,8 +160,8 @@ def evaluate(
         LogError: on a log that cannot be read or prepared.
     """
     options = Options() if options is None else options
-    model, theta, stored = _identified(identified)
-    cutoff = float(cutoff_hz if cutoff_hz is not None else stored or DEFAULT_CUTOFF_HZ)
+    model, theta, own = _identified(identified)
+    cutoff = float(cutoff_hz if cutoff_hz is not None else own)
     if not 0 < cutoff < float("inf"):
         raise IdentificationError(f"the cut-off must be a positive number of Hz, got {cutoff}")
     params = {"identified": theta}
@@ -207,11 +207,12 @@ def _fits(model, params, log: JointLog) -> dict[str, TorqueFit]:
     return out
 
 
-def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float | None]:
-    """``(model, theta, stored cut-off or None)`` of a model file or a pair."""
+def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float]:
+    """``(model, theta, cut-off)`` of a model file or a pair: the cut-off the model file
+    stores, else `DEFAULT_CUTOFF_HZ` (a pair stores none), Hz."""
     if isinstance(identified, Sequence) and not isinstance(identified, str):
         model, theta = identified
-        return model, torch.as_tensor(theta, dtype=torch.float64), None
+        return model, torch.as_tensor(theta, dtype=torch.float64), DEFAULT_CUTOFF_HZ
     from ..io import read_identified
 
     path = os.fspath(identified)
@@ -222,4 +223,5 @@ def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float | None]
     except ValueError as exc:  # not a model file, or a damaged one: the message says which
         raise IdentificationError(f"{path}: {exc}") from None
     stored = ident.extras.get("cutoff_hz")
-    return ident.model, ident.theta.to(torch.float64), None if stored is None else float(stored)
+    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
+    return ident.model, ident.theta.to(torch.float64), cutoff

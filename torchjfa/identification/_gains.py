@@ -43,7 +43,6 @@ import numpy as np
 import torch
 
 from .._threads import single_thread
-from ..data import DEFAULT_CUTOFF_HZ
 from ..physical._convex import (
     MARGIN,
     _body_lmis,
@@ -291,8 +290,7 @@ def identify_drive_gains(
     if blocks < 3:
         raise IdentificationError(f"blocks must be at least 3 for the spreads, got {blocks}")
     options = Options() if options is None else options
-    model, theta0, stored = _identified(identified)
-    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
+    model, theta0, cutoff = _identified(identified)
     j, A = payload_regressor(model, link)
     cols = model.layout.split(torch.arange(model.n_params))[0][j]
     p, d = model.n_params, model.n_dof

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import torch
 
-from ..data import DEFAULT_CUTOFF_HZ, JointLog
+from ..data import JointLog
 from ..dynamics import ParameterLayout, RigidBodyModel
 from ..dynamics._parameters import inertial_from_vector, pseudo_inertia
 from ..physical import inertial_from_pseudo_inertia
@@ -330,8 +330,7 @@ def identify_payload(
     """
     options = Options() if options is None else options
     bounds = Bounds.parse(bounds) if isinstance(bounds, str) else bounds
-    model, theta, stored = _identified(identified)
-    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
+    model, theta, cutoff = _identified(identified)
     j, A = payload_regressor(model, link)
     cols = model.layout.split(torch.arange(model.n_params))[0][j]
     train, held = _prepared(loaded, model, options, cutoff)
