@@ -93,7 +93,8 @@ def run(
         loaded, free, mass = check_pair
         print(f"\ncheck on {loaded} / {free} ({mass} kg), not used above:", file=out)
         for name, gains in sets.items():
-            robot = _robot(folder, gains, tmp / name, smoke)
+            # the README's robot is the one identified above
+            robot = model if gains == DRIVE_GAINS else _robot(folder, gains, tmp / name, smoke)
             options = torchjfa.Options(drive_gains=list(gains))
             result[name] = {}
             for way, unloaded in (("pair", folder / free), ("robot", None)):

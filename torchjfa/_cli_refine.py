@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 __all__ = ["add_refine", "cmd_refine"]
@@ -71,5 +70,4 @@ def cmd_refine(args, reading) -> int:
         print(line)
     kept = ", ".join(result.accepted) or "nothing (the identified values stay)"
     print(f"kept: {kept}; written: {out / 'refined.xml'}, refinement.json, refinement.md")
-    sys.stdout.flush()
     return 0
