@@ -6,7 +6,7 @@ import logging
 
 import pytest
 
-import torchjfa._notes as notes_module
+import torchjfa._util as notes_module
 
 
 class _Records(logging.Handler):

@@ -216,7 +216,7 @@ def reference(path, robot: _Robot):
         UsageError: if the file is missing or holds no trajectory, its joints are not the
             robot's, or it leaves a joint's range.
     """
-    from ._joints import permutation
+    from .data._joints import permutation
     from .excitation._fourier import FourierTrajectory
 
     if not Path(path).is_file():

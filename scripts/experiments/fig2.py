@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchjfa._progress import progress_bar
+from torchjfa._util import progress_bar
 from torchjfa.estimators import JFA, OLS, PLS, TLS, BayesianJFA, Lasso, Ridge, Stepwise
 from torchjfa.metrics import nmse
 

@@ -38,7 +38,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
-from torchjfa._progress import progress_bar
+from torchjfa._util import progress_bar
 from torchjfa.dynamics import RigidBodyModel
 from torchjfa.identification import (
     Options,

@@ -156,7 +156,7 @@ def test_a_tie_among_every_cutoff_is_said_so_and_the_rule_breaks_it():
 def test_a_tie_among_the_prior_weights_is_said_so():
     from types import SimpleNamespace
 
-    from torchjfa._report_markdown import _prior_note
+    from torchjfa.report._markdown import _prior_note
 
     tied = SimpleNamespace(prior_weight=1e5, prior_choice={0.0: 0.1283, 100.0: 0.1283, 1e5: 0.1283})
     text = " ".join(_prior_note(tied))

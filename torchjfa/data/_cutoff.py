@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .._threads import single_thread
+from .._util import single_thread
 from ..dynamics._parameters import check_coulomb_velocity
 from ._log import JointLog, LogError
 from ._prepare import is_uniform, prepare, resample

@@ -50,8 +50,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._joints import permutation
 from ._columns import gather, seconds, table_columns
+from ._joints import permutation
 from ._npz import NpzArchive, npz_columns
 from ._schema import KINDS, TIME_COLUMN, LogError
 

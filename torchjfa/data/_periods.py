@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import torch
 
-from .._joints import permutation
-from .._progress import progress_bar
+from .._util import progress_bar
 from .._validation import check_joint_weights
+from ._joints import permutation
 from ._log import JointLog
 
 __all__ = ["PeriodNoise", "regressor_noise"]

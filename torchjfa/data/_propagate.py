@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from .._joints import permutation
 from .._validation import check_joint_weights
 from ._differentiate import DEFAULT_CUTOFF_HZ
+from ._joints import permutation
 from ._log import JointLog
 from ._prepare import prepare
 from ._schema import LogError

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._notes import note
+from .._util import note
 from ._schema import TIME_COLUMN, LogError
 
 __all__ = ["EFFORTS", "JOINT_STATE", "ros_columns"]

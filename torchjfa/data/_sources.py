@@ -16,7 +16,7 @@ from collections.abc import Iterator, Mapping, Sequence
 import numpy as np
 import torch
 
-from .._joints import permutation
+from ._joints import permutation
 from ._npz import NpzLog
 
 __all__ = ["log_length", "log_sources"]

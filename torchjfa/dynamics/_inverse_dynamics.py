@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._notes import note
+from .._util import note
 from .._validation import as_tensor, check_finite
 from ._forward import bias_forces, forward_dynamics, mass_matrix, regressor
 from ._model import RigidBodyModel

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from .._notes import note
+from .._util import note
 from ._codegen import LANES, kernel_source
 from ._tree import KinematicTree
 

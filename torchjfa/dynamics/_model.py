@@ -16,9 +16,7 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 import torch
 
-from .._notes import note
-from .._progress import progress_bar
-from .._threads import single_thread
+from .._util import note, progress_bar, single_thread
 from .._validation import as_tensor
 from ..stats import Moments
 from ._inputs import check_chunk, check_out, check_state, new_output

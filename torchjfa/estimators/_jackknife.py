@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from ..stats import Moments
 from ._base import LinearEstimator
 

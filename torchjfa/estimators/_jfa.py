@@ -28,7 +28,7 @@ from dataclasses import replace
 
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from .._validation import as_tensor, check_finite, check_X
 from ..stats import Moments, as_folds
 from . import _jfa_fit

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import torch
 
-from .._threads import single_thread
+from .._util import single_thread
 from . import _jfa_newton as jn
 from ._jfa_em import Result, first_sweep, full, ml_closed_form, run_em
 from ._jfa_model import Settings, State, Stats

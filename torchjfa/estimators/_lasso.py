@@ -23,7 +23,7 @@ import warnings
 import numpy as np
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from ..stats import Moments
 from ._cv import MomentEstimator, check_grid, check_positive_real, cv_mse, train_test_splits
 

@@ -16,7 +16,7 @@ import math
 
 import torch
 
-from .._threads import single_thread
+from .._util import single_thread
 from ..stats import Moments
 from ._cv import MomentEstimator, check_grid, check_positive_real
 

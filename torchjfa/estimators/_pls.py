@@ -19,7 +19,7 @@ import numbers
 
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from ..stats import Moments
 from ._cv import MomentEstimator, cv_mse, train_test_splits
 

@@ -47,7 +47,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from ..dynamics import RigidBodyModel
 from ..sim import SinusoidTrajectory, random_trajectory
 from ._check import check_limits, physical_margins

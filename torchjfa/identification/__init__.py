@@ -26,9 +26,7 @@ spread of the unconstrained estimate. `evaluate` judges an identified model on o
 payload --mass``).
 """
 
-from .._result import IdentificationResult as IdentificationResult
-from .._stream import residual_joint_weights as residual_joint_weights
-from .._stream import stream_moments as stream_moments
+from ..report._result import IdentificationResult as IdentificationResult
 from ._bias import correct_bias as correct_bias
 from ._bias import signal_bootstrap as signal_bootstrap
 from ._bias import simex_bias as simex_bias
@@ -63,6 +61,8 @@ from ._prior import PRIOR_WEIGHTS as PRIOR_WEIGHTS
 from ._read import RawLog as RawLog
 from ._read import load_model as load_model
 from ._read import read as read
+from ._stream import residual_joint_weights as residual_joint_weights
+from ._stream import stream_moments as stream_moments
 from ._validate import HELD_OUT_TARGET as HELD_OUT_TARGET
 from ._validate import coverage_warnings as coverage_warnings
 from ._validate import measured_torque as measured_torque

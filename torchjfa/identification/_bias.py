@@ -9,16 +9,16 @@ from dataclasses import replace
 
 import torch
 
-from .._progress import progress_bar
-from .._result import IdentificationResult
-from .._stream import stream_moments
+from .._util import progress_bar
 from ..data import LogError, SignalNoise, redrawn_logs
 from ..dynamics import RigidBodyModel
 from ..estimators import bootstrap
+from ..report._result import IdentificationResult
 from ._fit import make_estimator
 from ._noise import NoiseChoice
 from ._options import IdentificationError, Options
 from ._prepare import PreparedData
+from ._stream import stream_moments
 
 __all__ = ["correct_bias", "signal_bootstrap", "simex_bias"]
 

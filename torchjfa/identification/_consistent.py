@@ -7,9 +7,9 @@ from dataclasses import replace
 
 import torch
 
-from .._result import IdentificationResult
-from .._threads import single_thread
+from .._util import single_thread
 from ..physical import project
+from ..report._result import IdentificationResult
 from ._options import IdentificationError, Options
 from ._prior import check_description_prior, choose_prior_weight, pick_prior_weight, prior_options
 

@@ -112,7 +112,7 @@ class Evaluation:
     def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
         """``evaluation.json`` and, with ``plots``, one figure of measured and predicted torques
         per log (``torques_<i>.png``) in ``out_dir``; returns the paths."""
-        from .._report_figures import torques_figure
+        from ..report._figures import torques_figure
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

@@ -16,18 +16,18 @@ from __future__ import annotations
 
 import torch
 
-from .._result import IdentificationResult
-from .._stream import stream_moments
 from .._validation import check_joint_weights
 from ..distributed import rank_and_world_size
 from ..dynamics import RigidBodyModel
 from ..estimators import LinearEstimator
 from ..estimators import jackknife as _jackknife
+from ..report._result import IdentificationResult
 from ..stats import Moments
 from ._noise import NoiseChoice, choose_noise, noise_vector
 from ._options import IdentificationError, Options
 from ._prepare import PreparedData
 from ._prior import PRIOR_BLOCKS
+from ._stream import stream_moments
 
 __all__ = ["fit", "make_estimator"]
 

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .._threads import single_thread
+from .._util import single_thread
 from ..physical._convex import (
     MARGIN,
     _body_lmis,

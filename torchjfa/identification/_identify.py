@@ -12,10 +12,10 @@ from pathlib import Path
 
 import torch
 
-from .._progress import progress_bar
-from .._result import IdentificationResult
+from .._util import progress_bar
 from ..dynamics import RigidBodyModel
 from ..report import IdentificationReport, TorqueFit, estimator_text, verdict
+from ..report._result import IdentificationResult
 from ._bias import correct_bias
 from ._consistent import make_consistent
 from ._fit import fit

@@ -7,12 +7,12 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
-from .._stream import residual_joint_weights
 from .._validation import as_tensor, check_finite
 from ..data import JointLog, LogError, propagated_noise, regressor_noise
 from ..dynamics import RigidBodyModel
 from ._options import IdentificationError, Options
 from ._prepare import PreparedData
+from ._stream import residual_joint_weights
 
 __all__ = ["NoiseChoice", "choose_noise", "cap_period_noise", "noise_vector"]
 

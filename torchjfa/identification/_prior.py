@@ -18,9 +18,9 @@ from typing import NamedTuple
 
 import torch
 
-from .._result import PRIOR_TOLERANCE as _PRIOR_TOLERANCE
 from ..estimators._jackknife import refit_totals, refit_without
 from ..physical import parameter_scales, unconstrained_projection
+from ..report._result import PRIOR_TOLERANCE as _PRIOR_TOLERANCE
 from ..stats import Moments
 
 __all__ = [

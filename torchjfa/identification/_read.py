@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .._joints import permutation
 from ..data import JointLog, LogError, check_log, read_log
+from ..data._joints import permutation
 from ..dynamics import RigidBodyModel
 from ._options import DEFAULT_JOINT_TERMS, IdentificationError, Options, joint_terms
 

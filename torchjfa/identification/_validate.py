@@ -17,9 +17,9 @@ import numpy as np
 import torch
 from scipy import interpolate
 
-from .._result import IdentificationResult
 from ..data import JointLog, coverage
 from ..report import IdentificationReport, make_report, torque_errors
+from ..report._result import IdentificationResult
 from ._noise import NoiseChoice
 from ._prepare import LogPart, PreparedData, concatenate
 

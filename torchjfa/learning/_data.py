@@ -20,8 +20,8 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 
-from .._joints import permutation
 from ..data import JointLog
+from ..data._joints import permutation
 from ..io import load_identified
 from ..sim import load_log
 

@@ -8,8 +8,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .._progress import progress_bar
-from .._threads import single_thread
+from .._util import progress_bar, single_thread
 
 __all__ = ["Problem", "minimise", "single_thread", "theta_fn"]
 

@@ -29,8 +29,8 @@ import mujoco
 import numpy as np
 import torch
 
-from .._joints import permutation
-from .._progress import progress_bar
+from .._util import progress_bar
+from ..data._joints import permutation
 from ..dynamics import InverseDynamics, RigidBodyModel
 from ._generate import DEFAULT_RATE, DEFAULT_RATES
 from ._robots import check_hinge_robot, joint_names, joint_ranges, load_robot

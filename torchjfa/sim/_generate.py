@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 import torch
 
-from .._progress import progress_bar
+from .._util import progress_bar
 from ..data import DEFAULT_CUTOFF_HZ, differentiate
 from ._log import SensorNoise, SimulatedLog
 from ._robots import _fields, check_hinge_robot, joint_names, load_robot

@@ -12,8 +12,8 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from .physical import ConsistencyReport
-from .physical._base import parameter_kind
+from ..physical import ConsistencyReport
+from ..physical._base import parameter_kind
 
 __all__ = [
     "UNDETERMINED_FACTOR",

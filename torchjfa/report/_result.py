@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .dynamics import InverseDynamics, RigidBodyModel
-from .estimators import LinearEstimator
-from .physical import ProjectionResult
-from .stats import Moments
+from ..dynamics import InverseDynamics, RigidBodyModel
+from ..estimators import LinearEstimator
+from ..physical import ProjectionResult
+from ..stats import Moments
 
 __all__ = ["IdentificationResult", "PRIOR_TOLERANCE"]
 

@@ -4,8 +4,8 @@ import itertools
 
 import pytest
 
-from torchjfa._joints import permutation
 from torchjfa.data import LogError
+from torchjfa.data._joints import permutation
 
 NAMES = ("a", "b", "c", "d")
 

@@ -1,28 +1,5 @@
-"""A report a person can read: is the identified model good, what to do next, and the numbers
-behind that.
-
-`make_report` takes an `IdentificationResult` and held-out data and measures what a user needs
-before putting the identified model in a controller:
-
-* the verdict (`IdentificationReport.judge`): the held-out torque error against the
-  description's, physical consistency, how many parameters the data do not determine, the
-  warnings, and the next step, by rules on these numbers (`torchjfa._report_verdict`);
-* held-out torque nMSE and RMS error per joint for the identified model, the unconstrained
-  estimate and the description's parameters;
-* per parameter: what the data determine (`torchjfa.physical.base_parameters`), the consistent
-  (projected) value and what fixes it (data, description prior, projection), the estimator's
-  unconstrained value, its delete-one-block jackknife spread (Bayesian JFA's posterior
-  standard deviation and relevance too, in ``report.json`` and ``parameters.csv`` only: neither
-  measures the error), and the description's (CAD) value;
-* the physical-consistency check (`torchjfa.physical.check`) of both estimates;
-* noise: the estimator's output noise and, with a periodic excitation, the spread between
-  periods of positions, velocities, accelerations and torques.
-
-`IdentificationReport.write` puts it in a folder: ``model.npz`` (`torchjfa.io.load_identified`
-reads it), ``validation.npz`` (the held-out q, qd, qdd, tau the figures were computed on),
-``parameters.csv``, ``report.json``, ``report.md`` (short; ``appendix=True`` adds the long
-tables) and the PNG figures.
-"""
+"""`make_report` and `IdentificationReport`: the numbers behind the verdict, and the folder
+`IdentificationReport.write` fills."""
 
 from __future__ import annotations
 
@@ -37,34 +14,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ._report_appendix import appendix as appendix_lines
-from ._report_figures import parameters_figure, torques_figure
-from ._report_markdown import report_markdown
-from ._report_verdict import Verdict, make_verdict
-from ._report_words import (
-    UNDETERMINED_FACTOR,
+from ..data import JointLog
+from ..metrics import nmse, rms
+from ..physical import BaseParameters, ConsistencyReport, base_parameters, check
+from ._appendix import appendix as appendix_lines
+from ._figures import parameters_figure, torques_figure
+from ._markdown import report_markdown
+from ._result import IdentificationResult
+from ._verdict import Verdict, make_verdict
+from ._words import (
     convergence,
     estimator_text,
     undetermined,
-    verdict,
 )
-from ._result import IdentificationResult
-from .data import JointLog
-from .metrics import nmse, rms
-from .physical import BaseParameters, ConsistencyReport, base_parameters, check
 
-__all__ = [
-    "TorqueFit",
-    "IdentificationReport",
-    "Verdict",
-    "make_report",
-    "predicted_torques",
-    "torque_errors",
-    "estimator_text",
-    "undetermined",
-    "verdict",
-    "UNDETERMINED_FACTOR",
-]
+__all__ = ["IdentificationReport", "TorqueFit", "make_report", "predicted_torques", "torque_errors"]
 
 
 @dataclass(frozen=True)
@@ -212,7 +176,7 @@ class IdentificationReport:
         return [str(w) for w in self.settings.get("warnings", ())] + ([late] if late else [])
 
     def judge(self, model_path: str = "model.npz") -> Verdict:
-        """The verdict (`torchjfa._report_verdict.make_verdict`): held-out error against the
+        """The verdict (`torchjfa.report._verdict.make_verdict`): held-out error against the
         description's, consistency, what the data leave undetermined, the warnings and the
         next steps (the load step names ``model_path``)."""
         return make_verdict(self, model_path)
@@ -353,7 +317,7 @@ class IdentificationReport:
     def plot_torques(self, path=None, *, seconds: float | None = 10.0):
         """Measured and predicted held-out torque per joint (the first ``seconds``): one axes
         per joint titled with each prediction's nMSE, one legend below the axes
-        (`torchjfa._report_figures.torques_figure`). Returns the `matplotlib.figure.Figure`,
+        (`torchjfa.report._figures.torques_figure`). Returns the `matplotlib.figure.Figure`,
         written to ``path`` when given."""
         kinds = dict(zip(self.model.joint_names, self.model.joint_types, strict=True))
         return torques_figure(self.validation, self.fits, kinds, path, seconds=seconds)
@@ -361,7 +325,7 @@ class IdentificationReport:
     def plot_parameters(self, path=None):
         """How far each unconstrained estimate lies from 0 in its spreads, grouped by body,
         every mark explained in a legend right of the axes
-        (`torchjfa._report_figures.parameters_figure`). Returns the `matplotlib.figure.Figure`,
+        (`torchjfa.report._figures.parameters_figure`). Returns the `matplotlib.figure.Figure`,
         written to ``path`` when given."""
         return parameters_figure(self.parameter_rows(), self.undetermined_entries(), path)
 
@@ -402,13 +366,13 @@ class IdentificationReport:
         appendix: bool = False,
     ) -> str:
         """The report as Markdown: the verdict, then one short section after the other
-        (`torchjfa._report_markdown.report_markdown`).
+        (`torchjfa.report._markdown.report_markdown`).
 
         Args:
             images: caption -> relative PNG path of each figure.
             folder: the report's folder (the verdict's load step names its ``model.npz``).
             appendix: end with the long tables (every parameter, the base-parameter
-                combinations, each log, each body; `torchjfa._report_appendix.appendix`).
+                combinations, each log, each body; `torchjfa.report._appendix.appendix`).
         """
         text = report_markdown(self, images, folder=folder, appendix=appendix)
         if appendix:
@@ -424,7 +388,7 @@ class IdentificationReport:
         Returns:
             name -> path of each file written.
         """
-        from .io import save_identified
+        from ..io import save_identified
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import torch
 
-from ._progress import progress_bar
-from ._validation import check_finite, check_joint_weights
-from .data import log_sources
-from .distributed import all_reduce_moments, rank_and_world_size, shard_range
-from .dynamics import RigidBodyModel
-from .stats import Moments
+from .._util import progress_bar
+from .._validation import check_finite, check_joint_weights
+from ..data import log_sources
+from ..distributed import all_reduce_moments, rank_and_world_size, shard_range
+from ..dynamics import RigidBodyModel
+from ..stats import Moments
 
 __all__ = ["residual_joint_weights", "stream_moments"]
 
@@ -186,7 +186,7 @@ def residual_joint_weights(
     Returns:
         ``(n_dof,)`` float64 weights, mean 1, in the model's joint order.
     """
-    from .estimators import OLS
+    from ..estimators import OLS
 
     parts = stream_moments(model, logs, chunk_size=chunk_size, per_joint=True, **kwargs)
     total = sum(parts[1:], parts[0].copy())

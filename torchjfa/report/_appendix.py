@@ -12,8 +12,8 @@ from collections.abc import Mapping
 
 import torch
 
-from ._report_verdict import quadratic_mean
-from ._report_words import _UNIT_SCALE, UNDETERMINED_FACTOR, consistency_table, g3
+from ._verdict import quadratic_mean
+from ._words import _UNIT_SCALE, UNDETERMINED_FACTOR, consistency_table, g3
 
 __all__ = ["appendix"]
 

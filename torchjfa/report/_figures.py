@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .physical._base import parameter_kind
+from ..physical._base import parameter_kind
 
 __all__ = ["torques_figure", "parameters_figure"]
 

@@ -1,11 +1,11 @@
 """How an identification report reads: the Markdown of `IdentificationReport.markdown`.
 
-``report.md`` opens with the verdict (`torchjfa._report_verdict`), then one short section each:
+``report.md`` opens with the verdict (`torchjfa.report._verdict`), then one short section each:
 the held-out torque error per joint, the warnings, what the data determine, physical
 consistency, noise, how the model was identified, the figures, and where the long tables are
-(`parameters.csv`, ``report.json``, or the appendix, `torchjfa._report_appendix`, with
+(`parameters.csv`, ``report.json``, or the appendix, `torchjfa.report._appendix`, with
 ``appendix=True``). The wording the report shares with ``report.json``, the figures and the
-command's output is in `torchjfa._report_words`. The section functions read only the
+command's output is in `torchjfa.report._words`. The section functions read only the
 `IdentificationReport`'s attributes and methods (no import of `torchjfa.report`).
 """
 
@@ -15,8 +15,9 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-from ._report_verdict import Verdict, quadratic_mean, short_warning
-from ._report_words import (
+from ._result import PRIOR_TOLERANCE
+from ._verdict import Verdict, quadratic_mean, short_warning
+from ._words import (
     _filtered,
     _noise_mode,
     consistency_table,
@@ -25,7 +26,6 @@ from ._report_words import (
     g3,
     verdict,
 )
-from ._result import PRIOR_TOLERANCE
 
 __all__ = ["report_markdown"]
 
@@ -47,7 +47,7 @@ def report_markdown(
         report: an `IdentificationReport`.
         images: caption -> relative PNG path of each figure (no figures section when empty).
         folder: the report's folder (the verdict's load step names ``folder/model.npz``).
-        appendix: whether the appendix (`torchjfa._report_appendix.appendix`, which the
+        appendix: whether the appendix (`torchjfa.report._appendix.appendix`, which the
             caller appends) follows: the last section points to it.
 
     Returns:
