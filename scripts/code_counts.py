@@ -3,9 +3,12 @@
     python scripts/code_counts.py            # the table; exit status 1 when a rule is broken
     python scripts/code_counts.py --quiet    # the exit status alone
 
-Rules: one function named ``identify`` in the package; no import cycle between its modules;
-no module over ``MAX_MODULE_LINES`` lines; no function over ``MAX_FUNCTION_LINES`` lines (its
-docstring not counted). Also
+Rules: one function named ``identify`` in the package; no import cycle between its modules,
+nor between its packages; every import down the layers (``LAYERS``: a package imports only
+from its own layer or below), so that no library module imports the command line; at most
+``MAX_TOP_LEVEL`` modules at the top of the package; no module over ``MAX_MODULE_LINES``
+lines; no function over ``MAX_FUNCTION_LINES`` lines (its docstring not counted). Imports
+inside functions count everywhere: they are still dependencies. Also
 printed: the code lines (neither blank, nor comment, nor docstring) of the Bayesian JFA
 implementation (``torchjfa/estimators/_jfa*.py``). Everything is read from the source with
 `ast`; nothing is imported.
@@ -53,7 +56,10 @@ def imports(name: str, path: Path, known: set[str]) -> set[str]:
                 stem = ".".join(base + ([node.module] if node.module else []))
             else:
                 stem = node.module or ""
-            targets = [stem] + [f"{stem}.{a.name}" for a in node.names]
+            subs = [f"{stem}.{a.name}" for a in node.names]
+            # ``from pkg import module`` depends on the module; the package's own __init__
+            # counts only where a name is not a module of it
+            targets = subs if all(t in known for t in subs) else [stem, *subs]
         else:
             continue
         for target in targets:
@@ -159,6 +165,78 @@ def code_lines(path: Path) -> int:
     return len(lines - docstrings)
 
 
+#: the package's layers, bottom first: a package imports only from its own layer or below,
+#: and the command line (``cli``) only from above (no library module imports it)
+LAYERS = (
+    ("_validation", "_util", "stats", "metrics", "robots"),
+    ("data", "distributed"),
+    ("estimators", "dynamics"),
+    ("physical",),
+    ("io",),
+    ("report",),
+    ("identification", "excitation", "sim", "learning"),
+    ("cli",),
+)
+#: command-line entry points outside ``cli`` (``python -m torchjfa`` and the ``python -m``
+#: aliases of sub-commands), which belong to the command line's layer wherever their file lies
+ENTRY_POINTS = ("torchjfa.__main__", "torchjfa.sim.__main__", "torchjfa.learning.cli")
+#: the most modules (``.py`` files) at the top of the package
+MAX_TOP_LEVEL = 8
+
+
+def package_of(name: str) -> str:
+    """The first-level package (or top-level module) a dotted module name belongs to:
+    ``torchjfa.sim._log`` -> ``sim``; an entry point (`ENTRY_POINTS`) -> ``cli``; the package's
+    own ``__init__`` -> ``torchjfa``."""
+    if name in ENTRY_POINTS:
+        return "cli"
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, dict[str, list[str]]]:
+    """Package -> imported package -> the ``"module -> module"`` imports that make the edge
+    (imports inside functions count). The package's ``__init__`` (its public face, which
+    imports every layer) is left out."""
+    out: dict[str, dict[str, list[str]]] = {}
+    for a, targets in graph.items():
+        pa = package_of(a)
+        if pa == a.split(".")[0]:
+            continue
+        for b in targets:
+            pb = package_of(b)
+            if pb != pa:
+                out.setdefault(pa, {}).setdefault(pb, []).append(f"{a} -> {b}")
+    return out
+
+
+def layer_violations(packages: dict[str, dict[str, list[str]]]) -> list[str]:
+    """Imports that go up the layers (`LAYERS`), and packages no layer names."""
+    level = {p: i for i, layer in enumerate(LAYERS) for p in layer}
+    out = [f"{p}: in no layer" for p in sorted(packages) if p not in level]
+    for a, edges in sorted(packages.items()):
+        for b, why in sorted(edges.items()):
+            if b not in level:
+                out.append(f"{a} imports {b}, which no layer names ({why[0]})")
+            elif a in level and level[b] > level[a]:
+                out.append(f"{a} imports {b}, a higher layer ({why[0]})")
+    return out
+
+
+def cli_importers(graph: dict[str, set[str]]) -> list[str]:
+    """Modules outside the command line (``cli`` and `ENTRY_POINTS`) that import it."""
+    return sorted(
+        a
+        for a, targets in graph.items()
+        if package_of(a) != "cli" and any(package_of(b) == "cli" for b in targets)
+    )
+
+
+def top_level_modules(root: Path = PACKAGE) -> list[str]:
+    """The ``.py`` files directly in the package."""
+    return sorted(p.name for p in root.glob("*.py"))
+
+
 def run(root: Path = PACKAGE, out=sys.stdout) -> dict[str, object]:
     """Print the counts; return them (``"ok"``: every rule holds)."""
     files = modules(root)
@@ -177,17 +255,38 @@ def run(root: Path = PACKAGE, out=sys.stdout) -> dict[str, object]:
         ),
         "bayes_jfa_code_lines": sum(code_lines(p) for p in sorted(root.glob(BAYES_JFA))),
     }
+    packages = package_graph(graph)
+    found["package_cycles"] = cycles({a: set(b) for a, b in packages.items()})
+    found["layer_violations"] = layer_violations(packages)
+    found["top_level"] = top_level_modules(root)
+    found["cli_importers"] = cli_importers(graph)
     found["ok"] = (
         len(found["identify"]) == 1
         and not found["cycles"]
         and not found["long_modules"]
         and not found["long_functions"]
+        and not found["package_cycles"]
+        and not found["layer_violations"]
+        and not found["cli_importers"]
+        and len(found["top_level"]) <= MAX_TOP_LEVEL
     )
     print(f"functions named identify: {len(found['identify'])} ({', '.join(found['identify'])})",
           file=out)  # fmt: skip
     print(f"import cycles: {len(found['cycles'])}", file=out)
     for comp in found["cycles"]:
         print("  " + " <-> ".join(comp), file=out)
+    print(f"package cycles: {len(found['package_cycles'])}", file=out)
+    for comp in found["package_cycles"]:
+        print("  " + " <-> ".join(comp), file=out)
+    print(f"imports up the layers: {len(found['layer_violations'])}", file=out)
+    for line in found["layer_violations"]:
+        print("  " + line, file=out)
+    print(f"library modules importing the command line: {len(found['cli_importers'])}",
+          file=out)  # fmt: skip
+    for name in found["cli_importers"]:
+        print("  " + name, file=out)
+    print(f"top-level modules: {len(found['top_level'])} (at most {MAX_TOP_LEVEL}): "
+          f"{', '.join(found['top_level'])}", file=out)  # fmt: skip
     print(f"modules over {MAX_MODULE_LINES} lines: {len(found['long_modules'])}", file=out)
     for path, n in found["long_modules"]:
         print(f"  {path}: {n}", file=out)

@@ -228,3 +228,34 @@ def test_bad_input_ends_with_one_line_and_status_2(tmp_path, capsys):
     code, _, err = _run(capsys, "evaluate", tmp_path / "head.npz", "--robot",
                         tmp_path / "nowhere.xml", "--quiet")  # fmt: skip
     assert code == 2 and "no robot file" in err
+
+
+def test_the_old_python_m_command_warns_and_runs_simulate(tmp_path, capsys):
+    import pytest
+
+    from torchjfa.sim.__main__ import main as old
+
+    out = tmp_path / "head.npz"
+    with pytest.warns(FutureWarning, match="torchjfa simulate"):
+        code = old(["head", "--n-samples", "840", "--quiet", "--out", str(out)])
+    assert code == 0 and "wrote 840 samples" in capsys.readouterr().out
+    log = SimulatedLog.load(out)  # the whole SimulatedLog, as --full writes it
+    assert log.n_samples == 840 and log.tau_true.shape == (840, 7)
+
+
+def test_evaluate_robot_reads_the_library_defaults():
+    import inspect
+
+    from torchjfa.cli import build_parser
+    from torchjfa.sim import evaluate_simulated, simulate
+
+    parser = build_parser()
+    sim = parser.parse_args(["simulate", "head", "--out", "x.csv"])
+    ev = parser.parse_args(["evaluate", "model.npz", "--robot", "head"])
+    for args, function, names in (
+        (sim, simulate, ("n_samples", "seed", "noise_scale")),
+        (ev, evaluate_simulated, ("n_samples", "seed", "control_seconds")),
+    ):
+        defaults = inspect.signature(function).parameters
+        for name in names:
+            assert getattr(args, name) == defaults[name].default, name

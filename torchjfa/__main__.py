@@ -1,5 +1,5 @@
 """``python -m torchjfa``: the same as the ``torchjfa`` command."""
 
-from .cli import _entry
+from .cli import entry
 
-_entry()
+entry()

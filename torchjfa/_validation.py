@@ -7,10 +7,19 @@ shape error deep inside a matrix product.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
-__all__ = ["as_tensor", "check_finite", "check_Xy", "check_X", "check_joint_weights"]
+__all__ = [
+    "as_tensor",
+    "check_coulomb_velocity",
+    "check_finite",
+    "check_Xy",
+    "check_X",
+    "check_joint_weights",
+]
 
 
 def as_tensor(value, *, name: str, dtype: torch.dtype | None = None, device=None) -> torch.Tensor:
@@ -157,3 +166,16 @@ def check_joint_weights(
     if bool((w < 0).any()) or not bool((w > 0).any()):
         raise ValueError("joint_weights must be non-negative and not all zero")
     return w
+
+
+def check_coulomb_velocity(value) -> float:
+    """A Coulomb smoothing velocity as a float >= 0 (rad/s), or a ValueError naming it."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, bool) or not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(
+            f"coulomb_velocity must be a finite number >= 0 (rad/s; 0 for sign(qd)), got {value!r}"
+        )
+    return v

@@ -14,7 +14,7 @@ key                    shape, dtype        meaning
 =====================  ==================  =====================================================
 ``format``             (), str             ``"torchjfa.IdentifiedModel"``
 ``version``            (), int64           1
-``library_version``    (), str             ``torchjfa.__version__`` of the writer
+``library_version``    (), str             the writer's torchjfa version
 ``source_format``      (), str             ``"urdf"`` or ``"mjcf"``
 ``source_path``        (), str             the description's absolute path ("" if none)
 ``source_xml``         (), str             the description's text (loads without the path)
@@ -37,6 +37,7 @@ that those load with ``torch.load(..., weights_only=True)``.
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
 import os
 from dataclasses import dataclass, field
@@ -66,9 +67,12 @@ _REQUIRED = frozenset(
 
 
 def _library_version() -> str:
-    from . import __version__
-
-    return __version__
+    """The installed torchjfa's version (its distribution's metadata, as ``pip`` has it), or
+    ``"unknown"`` when it runs from a source tree that was never installed."""
+    try:
+        return importlib.metadata.version("torchjfa")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
 
 
 @dataclass

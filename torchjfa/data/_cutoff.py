@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import torch
 
 from .._util import single_thread
-from ..dynamics._parameters import check_coulomb_velocity
+from .._validation import check_coulomb_velocity
 from ._log import JointLog, LogError
 from ._prepare import is_uniform, prepare, resample
 

@@ -17,9 +17,11 @@ from torch import nn
 
 from .._util import note
 from .._validation import as_tensor, check_finite
+from ._consistency import check
 from ._forward import bias_forces, forward_dynamics, mass_matrix, regressor
 from ._model import RigidBodyModel
 from ._parameters import ParameterLayout
+from ._parametrizations import LogCholeskyParameters
 
 __all__ = ["InverseDynamics", "ConsistentTheta", "PARAMETRIZATIONS"]
 
@@ -61,9 +63,6 @@ class ConsistentTheta(nn.Module):
 
     def __init__(self, layout: ParameterLayout, theta: torch.Tensor) -> None:
         super().__init__()
-        # imported here: torchjfa.physical imports torchjfa.dynamics while it initialises
-        from ..physical._parametrizations import LogCholeskyParameters
-
         self.layout = layout
         inertial, terms = layout.split(theta.detach().to(torch.float64))
         body_layout = ParameterLayout(layout.joint_names, ())
@@ -139,8 +138,6 @@ class InverseDynamics(nn.Module):
         check_finite(theta, "theta")
         self._parametrization = kind
         if kind == "consistent":
-            from ..physical._check import check  # (see ConsistentTheta)
-
             report = check(theta.detach(), model.layout)
             if not report.ok:
                 ok = report.body_ok.tolist()

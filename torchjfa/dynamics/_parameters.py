@@ -15,11 +15,12 @@ N m, N m and kg m^2 (N s/m, N, N and kg for prismatic joints).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
+
+from .._validation import check_coulomb_velocity as check_coulomb_velocity
 
 __all__ = [
     "BodyInertial",
@@ -225,19 +226,6 @@ def pseudo_inertia(pi: torch.Tensor) -> torch.Tensor:
     top = torch.cat([sigma, h[..., :, None]], -1)
     bottom = torch.cat([h, pi[..., :1]], -1)[..., None, :]
     return torch.cat([top, bottom], -2)
-
-
-def check_coulomb_velocity(value) -> float:
-    """A Coulomb smoothing velocity as a float >= 0 (rad/s), or a ValueError naming it."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = math.nan
-    if isinstance(value, bool) or not (math.isfinite(v) and v >= 0.0):
-        raise ValueError(
-            f"coulomb_velocity must be a finite number >= 0 (rad/s; 0 for sign(qd)), got {value!r}"
-        )
-    return v
 
 
 def friction_kinds(friction: str | Sequence[str]) -> tuple[str, ...]:

@@ -73,7 +73,10 @@ from ._problem import (
 )
 from ._problem import _penalty as _penalty
 
-__all__ = ["ExcitationResult", "optimize_excitation", "random_excitation"]
+__all__ = ["DEFAULT_RATE", "ExcitationResult", "optimize_excitation", "random_excitation"]
+
+#: an excitation's output rate, Hz (its limits are checked at 10x)
+DEFAULT_RATE = 200.0
 
 
 @dataclass
@@ -152,7 +155,7 @@ def optimize_excitation(
     posture=None,
     criterion: str = "d+condition",
     joint_weights=None,
-    rate: float = 100.0,
+    rate: float = DEFAULT_RATE,
     n_grid: int = 200,
     n_starts: int = 3,
     optimizer: str = "lbfgs",
@@ -471,7 +474,7 @@ def random_excitation(
     *,
     base_frequency: float = 0.1,
     harmonics: int = 5,
-    rate: float = 100.0,
+    rate: float = DEFAULT_RATE,
     seed: int | None = 0,
     posture=None,
     geometry=None,

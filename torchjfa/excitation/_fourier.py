@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from .._validation import as_tensor
+from ..data._joints import permutation
 from ..sim import SinusoidTrajectory
 
 __all__ = ["FourierTrajectory", "constrain_coefficients", "fourier_states"]
@@ -162,6 +163,24 @@ class FourierTrajectory:
             self.a * factor,
             self.b * factor,
             self.joint_names,
+        )
+
+    def reorder(self, joint_names, *, owner: str = "the robot") -> FourierTrajectory:
+        """The same trajectory with its joints in the order of ``joint_names``.
+
+        Args:
+            joint_names: ``(n_dof,)`` the joint order wanted (a robot's).
+            owner: whose joints they are, for the message.
+
+        Raises:
+            ValueError: if the two lists are not the same joints (the message names them).
+        """
+        perm = permutation(
+            self.joint_names, joint_names, have_name="the trajectory", want_name=owner
+        )
+        names = tuple(self.joint_names[i] for i in perm)
+        return FourierTrajectory(
+            self.base_frequency, self.posture[perm], self.a[perm], self.b[perm], names
         )
 
     def to_sinusoid(self) -> SinusoidTrajectory:

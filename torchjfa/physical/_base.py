@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..dynamics._parametrizations import resolve_layout
 from ..stats import Moments
-from ._parametrizations import resolve_layout
 
 __all__ = ["BaseParameters", "base_parameters", "parameter_scales", "parameter_kind"]
 

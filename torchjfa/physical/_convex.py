@@ -28,9 +28,9 @@ import numpy as np
 import torch
 
 from ..dynamics._parameters import pseudo_inertia
+from ..dynamics._parametrizations import LogCholeskyParameters
 from ._objective import normalised_problem
 from ._optimize import Problem
-from ._parametrizations import LogCholeskyParameters
 
 __all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import torch
 
 from .._validation import as_tensor, check_finite
+from ..dynamics._parametrizations import _check_theta, _power_of_two_scale, resolve_layout
 from ..stats import Moments
 from ._optimize import Problem
-from ._parametrizations import _check_theta, _power_of_two_scale, resolve_layout
 
 __all__ = [
     "check_non_negative",

@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from ..dynamics._consistency import ConsistencyReport, check
+from ..dynamics._parametrizations import LogCholeskyParameters, VirtualParameters
 from ..stats import Moments
-from ._check import ConsistencyReport, check
 from ._objective import check_non_negative, normalised_problem, objective_terms
 from ._optimize import Problem, minimise, single_thread, theta_fn
-from ._parametrizations import LogCholeskyParameters, VirtualParameters
 
 __all__ = ["ProjectionResult", "project", "unconstrained_projection", "PARAMETRIZATIONS"]
 

@@ -1,6 +1,9 @@
 """Simulated Sarcos-like robots in MuJoCo: models, identification data, controllers.
 
-Use this package to rebuild the paper's robot experiments without the robots:
+Use this package to rebuild the paper's robot experiments without the robots, and to simulate
+any description: `simulated_robot` compiles a robot with chosen joint effects, `simulate`
+records its noisy log (``torchjfa simulate``) and `evaluate_simulated` judges an identified
+model on it (``torchjfa evaluate --robot``).
 `load_robot` compiles the 7-DoF head or 10-DoF arm with switchable unmodeled effects
 (`load_description` compiles any URDF or MJCF description the same way, for the same uses),
 `generate_log` records a noisy `SimulatedLog` (a `torchjfa.data.JointLog` plus its ground truth)
@@ -22,6 +25,7 @@ from ._control import evaluate_control as evaluate_control
 from ._description import Description as Description
 from ._description import DescriptionError as DescriptionError
 from ._description import load_description as load_description
+from ._generate import DEFAULT_N_SAMPLES as DEFAULT_N_SAMPLES
 from ._generate import DEFAULT_RATE as DEFAULT_RATE
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
@@ -44,5 +48,13 @@ from ._robots import model_path as model_path
 from ._robots import robot_effects as robot_effects
 from ._robots import set_effects as set_effects
 from ._robots import true_parameters as true_parameters
+from ._simulate import DEFAULT_TEST_SAMPLES as DEFAULT_TEST_SAMPLES
+from ._simulate import SimulatedEvaluation as SimulatedEvaluation
+from ._simulate import SimulatedRobot as SimulatedRobot
+from ._simulate import check_trajectory as check_trajectory
+from ._simulate import evaluate_simulated as evaluate_simulated
+from ._simulate import limit_warnings as limit_warnings
+from ._simulate import simulate as simulate
+from ._simulate import simulated_robot as simulated_robot
 from ._trajectory import SinusoidTrajectory as SinusoidTrajectory
 from ._trajectory import random_trajectory as random_trajectory

@@ -50,8 +50,10 @@ from ._log import SensorNoise, SimulatedLog
 from ._robots import _fields, check_hinge_robot, joint_names, load_robot
 from ._trajectory import SinusoidTrajectory, random_trajectory
 
-__all__ = ["generate_log", "DEFAULT_RATES", "DEFAULT_RATE"]
+__all__ = ["generate_log", "DEFAULT_N_SAMPLES", "DEFAULT_RATES", "DEFAULT_RATE"]
 
+#: samples of a simulated log at the control rate (`generate_log`, ``torchjfa simulate``)
+DEFAULT_N_SAMPLES = 50_000
 DEFAULT_RATES = {"head": 420.0, "arm": 480.0}
 #: the control and sampling rate of any other robot (a description compiled for simulation), Hz
 DEFAULT_RATE = 500.0
@@ -253,7 +255,7 @@ def _robot_model(robot, unmodeled, name: str | None) -> tuple[mujoco.MjModel, st
 def generate_log(
     robot: str | mujoco.MjModel,
     *,
-    n_samples: int = 500_000,
+    n_samples: int = DEFAULT_N_SAMPLES,
     unmodeled: bool | Mapping[str, object] = True,
     trajectory: SinusoidTrajectory | None = None,
     control_rate: float | None = None,

@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from .._validation import as_tensor, check_finite
-from ..dynamics._parameters import (
+from ._parameters import (
     ParameterLayout,
     inertia_about_origin,
     pseudo_inertia,

@@ -1,77 +1,25 @@
 """``torchjfa identify``: its parser, generated from `torchjfa.identification.Options`, and the
 command.
 
-`add_identify` adds the sub-command to ``torchjfa``'s parser (`torchjfa.cli.build_parser`):
-one flag per field of `Options` and `Compute` (its metadata gives the flag, the help, the
-choices and the parser; the default is the field's), grouped as `GROUPS` says.
-`identify_options` turns the arguments back into `Options`; `cmd_identify` runs the flow.
+`add_identify` adds the sub-command: one flag per field of `Options` and `Compute`
+(`torchjfa.cli._common.add_option`), grouped as `GROUPS` says. `identify_options` turns the
+arguments back into `Options`; `cmd_identify` runs `torchjfa.identify` and writes its report.
 """
 
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
-from dataclasses import MISSING, Field
 
-from .identification._options import (
-    GROUPS,
-    Compute,
-    IdentificationError,
-    Options,
-    cli_fields,
-    joint_terms,
-    parser_type,
-)
+from ..identification._options import GROUPS, Compute, Options, cli_fields
+from ._common import UsageError, add_option, command_line
 
-UsageError = IdentificationError
-
-__all__ = ["add_identify", "add_option", "cmd_identify", "friction_terms", "identify_options"]
+__all__ = ["add_identify", "cmd_identify", "identify_options"]
 
 #: ``--smoke``: the first seconds of the log only
 SMOKE_SECONDS = 12.0
 #: the Bayesian JFA shortcuts: flag -> estimator option
 _SHORTCUTS = {"max_iter": "--max-iter", "ard": "--ard"}
-
-
-def friction_terms(text: str) -> tuple[str, ...]:
-    """``--friction``: `torchjfa.identification.joint_terms` of the text, as an argument type."""
-    try:
-        return joint_terms(text)
-    except UsageError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _default(f: Field):
-    return f.default_factory() if f.default is MISSING else f.default
-
-
-def add_option(group, f: Field) -> None:
-    """One field's flag: a bool's switch, else a value with its parser and choices."""
-    meta, default = f.metadata, _default(f)
-    flag = meta["flag"] or "--" + f.name.replace("_", "-")
-    if isinstance(default, bool):
-        if default:
-            flag = meta["flag"] or "--no-" + f.name.replace("_", "-")
-            group.add_argument(flag, dest=f.name, action="store_false", help=meta["help"])
-        else:
-            group.add_argument(flag, dest=f.name, action="store_true", help=meta["help"])
-        return
-    if meta["action"] == "switch":
-        group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction,
-                           default=default, help=meta["help"])  # fmt: skip
-        return
-    choices = meta["choices"]
-    choices = choices() if callable(choices) else choices
-    group.add_argument(
-        flag,
-        dest=f.name,
-        default=default,
-        type=None if choices else parser_type(f),
-        choices=choices,
-        metavar=meta["metavar"],
-        help=meta["help"],
-    )
 
 
 def identify_options(args) -> Options:
@@ -102,9 +50,9 @@ def identify_options(args) -> Options:
 def cmd_identify(args) -> int:
     import warnings
 
-    from .identification import IdentificationWarning, identify
+    from ..identification import IdentificationWarning, identify
 
-    command = "torchjfa " + " ".join(shlex.quote(a) for a in args.argv)
+    command = command_line(args)
     options = identify_options(args)
     if not options.project and any(a.startswith("--description-prior") for a in args.argv):
         raise UsageError("--description-prior acts in the projection: drop --no-project")
@@ -137,8 +85,8 @@ def cmd_identify(args) -> int:
 
 
 def add_identify(sub) -> argparse.ArgumentParser:
-    """Add the ``identify`` sub-command to ``sub`` (the ``add_subparsers`` of `torchjfa.cli`);
-    returns its parser, which runs `cmd_identify`."""
+    """Add the ``identify`` sub-command to ``sub`` (the ``add_subparsers`` of the ``torchjfa``
+    parser); returns its parser, which runs `cmd_identify`."""
     p = sub.add_parser(
         "identify",
         help="identify a robot's parameters from its logs and write a report",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..dynamics._parameters import inertia_about_origin, pseudo_inertia
+from ._parameters import inertia_about_origin, pseudo_inertia
 from ._parametrizations import (
     _check_theta,
     _parallel_axis_term,

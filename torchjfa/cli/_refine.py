@@ -1,5 +1,8 @@
 """``torchjfa refine``: the identified model's joint terms refined on MuJoCo rollouts
-(`torchjfa.sim.refine`, the ``sysid`` extra), kept where held-out rollouts improve."""
+(`torchjfa.sim.refine`, the ``sysid`` extra), kept where held-out rollouts improve.
+
+    torchjfa refine result/model.npz run1.csv run2.csv --held-out run3.csv --out refined/
+"""
 
 from __future__ import annotations
 
@@ -7,11 +10,13 @@ import argparse
 import json
 from pathlib import Path
 
+from ._common import UsageError, add_reading, reading
+
 __all__ = ["add_refine", "cmd_refine"]
 
 
-def add_refine(sub, add_reading) -> argparse.ArgumentParser:
-    """The ``refine`` sub-command's parser (``add_reading`` adds the reading options)."""
+def add_refine(sub) -> argparse.ArgumentParser:
+    """The ``refine`` sub-command's parser (runs `cmd_refine`)."""
     p = sub.add_parser(
         "refine",
         help="refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
@@ -34,14 +39,15 @@ def add_refine(sub, add_reading) -> argparse.ArgumentParser:
     p.add_argument("--delay", action="store_true", help="also fit a torque delay, s")
     p.add_argument("--out", default="refined", help="output folder")
     add_reading(p)
+    p.set_defaults(func=cmd_refine)
     return p
 
 
-def cmd_refine(args, reading) -> int:
-    """Run ``torchjfa refine`` (``reading(args)``: the reading `Options`)."""
-    from .identification._evaluate import _identified
-    from .identification._prepare import read_prepared, several
-    from .sim import refine
+def cmd_refine(args) -> int:
+    """Run ``torchjfa refine`` (see `add_refine`)."""
+    from ..identification._evaluate import _identified
+    from ..identification._prepare import read_prepared, several
+    from ..sim import refine
 
     model, theta, cutoff = _identified(args.model)
     options = reading(args)
@@ -49,15 +55,13 @@ def cmd_refine(args, reading) -> int:
     def prepared(logs):
         return [read_prepared(s, model, options, cutoff)[1] for s in several(logs)]
 
-    from .identification import IdentificationError
-
     parameters = ("frictionloss", "damping", "armature") + (("delay",) if args.delay else ())
     try:
         result = refine(
             model, theta, prepared(args.logs), prepared(args.held_out), parameters=parameters
         )
     except (ImportError, ValueError) as exc:  # the missing extra, logs too short
-        raise IdentificationError(" ".join(str(exc).split())) from None
+        raise UsageError(" ".join(str(exc).split())) from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "refined.xml").write_text(result.mjcf, encoding="utf-8")

@@ -1,0 +1,163 @@
+"""What every sub-command shares: the parser class that shows defaults, the one-line usage
+error, the flags generated from `torchjfa.identification.Options`, the library's defaults read
+from its signatures, and small argument types."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import shlex
+from dataclasses import MISSING, Field
+
+from ..identification._options import (
+    GROUPS,
+    IdentificationError,
+    Options,
+    cli_fields,
+    joint_terms,
+    parser_type,
+)
+
+__all__ = [
+    "Parser",
+    "UsageError",
+    "add_option",
+    "add_reading",
+    "command_line",
+    "default_of",
+    "friction_terms",
+    "load_model",
+    "numbers",
+    "reading",
+    "usage",
+]
+
+#: bad input from the user: printed as one line, exit status 2 (the flow's own error)
+UsageError = IdentificationError
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """``--help`` with every option's default, ``(default: X)``, after its help text (flags,
+    which are off unless given, and options without a default, say nothing)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (
+            not action.option_strings
+            or action.nargs == 0
+            or default is None
+            or default is argparse.SUPPRESS
+            or "%(default)" in text
+        ):
+            return text
+        if isinstance(default, (tuple, list)):
+            shown = ",".join(map(str, default)) or "none"
+        elif isinstance(default, float):
+            shown = f"{default:g}"
+        else:
+            shown = str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
+class Parser(argparse.ArgumentParser):
+    """An `argparse.ArgumentParser` whose help shows the defaults; its subcommands' parsers are
+    of the same class (``add_subparsers`` makes them so), and so show theirs."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
+def default_of(function, name: str):
+    """The default of ``function``'s keyword ``name``: the library declares it, the command
+    line shows and passes the same value."""
+    default = inspect.signature(function).parameters[name].default
+    if default is inspect.Parameter.empty:
+        raise TypeError(f"{function.__qualname__}'s {name} has no default")
+    return default
+
+
+def usage(exc: Exception) -> UsageError:
+    """A library's ``ValueError`` as the command line's one-line error."""
+    return UsageError(" ".join(str(exc).split()))
+
+
+def command_line(args) -> str:
+    """The command as the user typed it (for reports)."""
+    return "torchjfa " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []))
+
+
+def numbers(text: str) -> tuple[float, ...]:
+    """An argument type: one number or comma-separated numbers."""
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number or comma-separated numbers, got {text!r}"
+        ) from None
+
+
+def friction_terms(text: str) -> tuple[str, ...]:
+    """``--friction``: `torchjfa.identification.joint_terms` of the text, as an argument type."""
+    try:
+        return joint_terms(text)
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _default(f: Field):
+    return f.default_factory() if f.default is MISSING else f.default
+
+
+def add_option(group, f: Field) -> None:
+    """One `Options` field's flag: a bool's switch, else a value with its parser and choices
+    (the field's metadata gives the flag, the help, the choices and the parser; the default
+    is the field's)."""
+    meta, default = f.metadata, _default(f)
+    flag = meta["flag"] or "--" + f.name.replace("_", "-")
+    if isinstance(default, bool):
+        if default:
+            flag = meta["flag"] or "--no-" + f.name.replace("_", "-")
+            group.add_argument(flag, dest=f.name, action="store_false", help=meta["help"])
+        else:
+            group.add_argument(flag, dest=f.name, action="store_true", help=meta["help"])
+        return
+    if meta["action"] == "switch":
+        group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction,
+                           default=default, help=meta["help"])  # fmt: skip
+        return
+    choices = meta["choices"]
+    choices = choices() if callable(choices) else choices
+    group.add_argument(
+        flag,
+        dest=f.name,
+        default=default,
+        type=None if choices else parser_type(f),
+        choices=choices,
+        metavar=meta["metavar"],
+        help=meta["help"],
+    )
+
+
+def add_reading(p: argparse.ArgumentParser) -> None:
+    """The reading options of `torchjfa.identification.Options` (columns, time scale, drive
+    gains, ROS topic and effort), as ``identify`` has them."""
+    group = p.add_argument_group(GROUPS["reading"])
+    for f in cli_fields():
+        if f.metadata["group"] == "reading" and f.name != "max_seconds":
+            add_option(group, f)
+
+
+def reading(args) -> Options:
+    """The `torchjfa.identification.Options` of the reading flags `add_reading` added."""
+    fields = [f for f in cli_fields() if f.metadata["group"] == "reading"]
+    return Options(**{f.name: getattr(args, f.name) for f in fields if hasattr(args, f.name)})
+
+
+def load_model(robot: str, friction: tuple[str, ...] | None = None):
+    """A `RigidBodyModel` from a URDF/MJCF path, a shipped robot or a simulated robot name
+    (`torchjfa.identification.load_model`)."""
+    from ..identification import load_model as load
+
+    return load(robot, friction)

@@ -1,0 +1,129 @@
+"""The ``torchjfa`` parser and its entry point: one sub-command per module of this package."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..estimators import available as _estimators
+from ._common import Parser, UsageError
+
+__all__ = ["COMMANDS", "ESTIMATORS", "build_parser", "main"]
+
+ESTIMATORS = _estimators()  # the library's; a registered one is taken by torchjfa.identify
+
+
+def _add_residual(sub) -> argparse.ArgumentParser:
+    """The ``residual`` sub-command: everything after it goes to the Lightning trainer's own
+    command line (`torchjfa.cli._residual`), which has its own ``--help``."""
+    p = sub.add_parser(
+        "residual",
+        help="train residual dynamics with Lightning (fit, validate, test, predict)",
+        description="Train a residual model on top of an identified one with Lightning: "
+        "torchjfa residual fit --config torchjfa/learning/configs/head_residual.yaml "
+        "(torchjfa residual --help lists every option).",
+        add_help=False,
+    )
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="the trainer's arguments")
+    p.set_defaults(func=_cmd_residual)
+    return p
+
+
+def _cmd_residual(args) -> int:
+    from ._residual import main as residual
+
+    residual(args.rest)
+    return 0
+
+
+def _adders():
+    """Sub-command name -> the function that adds its parser (imported only when needed: the
+    parsers read the library's defaults, and ``excite``'s and ``simulate``'s import MuJoCo)."""
+
+    def lazy(module: str, name: str):
+        def add(sub):
+            from importlib import import_module
+
+            return getattr(import_module(f"torchjfa.cli.{module}"), name)(sub)
+
+        return add
+
+    return {
+        "identify": lazy("_identify", "add_identify"),
+        "simulate": lazy("_simulate", "add_simulate"),
+        "excite": lazy("_excite", "add_excite"),
+        "evaluate": lazy("_evaluate", "add_evaluate"),
+        "payload": lazy("_payload", "add_payload"),
+        "refine": lazy("_refine", "add_refine"),
+        "residual": _add_residual,
+    }
+
+
+#: the sub-commands, in the order ``torchjfa --help`` lists them: name -> one-line help
+COMMANDS = {
+    "identify": "identify a robot's parameters from its logs and write a report",
+    "simulate": "simulate a robot tracking an excitation and write its log",
+    "excite": "design an optimal excitation trajectory for identification",
+    "evaluate": "evaluate an identified model on logs (or on a simulated robot)",
+    "payload": "identify a payload fixed to a link from loaded logs",
+    "refine": "refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
+    "residual": "train residual dynamics with Lightning (fit, validate, test, predict)",
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``torchjfa`` parser, each sub-command's parser set to run its command.
+
+    Args:
+        command: build only this sub-command's options (the others are listed by name and
+            help); default every sub-command's.
+    """
+    parser = Parser(
+        prog="torchjfa",
+        description="Probabilistic identification of robot dynamics (Bayesian joint factor "
+        "analysis, physically consistent parameters).",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    adders = _adders()
+    for name, text in COMMANDS.items():
+        if command is None or name == command:
+            adders[name](sub)
+        else:
+            sub.add_parser(name, help=text)
+    return parser
+
+
+def _command(argv: list[str]) -> str | None:
+    """The sub-command ``argv`` names (its first argument that is not an option)."""
+    for a in argv:
+        if not a.startswith("-"):
+            return a if a in COMMANDS else None
+    return None
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (0 ok, 2 bad input).
+
+    Bad input (a missing column, an unknown joint, NaN rows, time going backwards, too few
+    samples, a robot file that does not parse) ends with one line on stderr and exit status 2,
+    not a traceback; ``--debug`` shows the traceback.
+    """
+    from ..data import LogError
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_command(argv) or "")
+    args = parser.parse_args(argv)
+    args.argv = argv
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, LogError, FileNotFoundError) as exc:
+        if args.debug:
+            raise
+        print(f"torchjfa {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def entry() -> None:
+    """The ``torchjfa`` console script."""
+    sys.exit(main())

@@ -1,0 +1,227 @@
+"""``torchjfa simulate``: any robot description in MuJoCo, tracking an excitation, written as a
+log (`torchjfa.sim.simulated_robot`, `torchjfa.sim.simulate`).
+
+    torchjfa simulate head --out log.csv
+    torchjfa simulate robot.urdf --trajectory traj/trajectory.npz --out log.csv
+    torchjfa simulate panda_arm --damping 0.5 --armature 0.1 --frictionloss 0.2 --out log.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import zipfile
+from pathlib import Path
+
+from ..robots import SIMULATED
+from ._common import UsageError, default_of, numbers, usage
+
+__all__ = ["add_simulate", "add_simulation_options", "cmd_simulate", "simulated_robot"]
+
+_EFFECT_OPTIONS = {
+    "damping": "viscous joint damping, N m s/rad",
+    "armature": "armature (reflected rotor inertia), kg m^2",
+    "frictionloss": "dry (Coulomb) joint friction, N m",
+    "stiffness": "joint spring stiffness (about the spring reference, q = 0 unless the "
+    "description sets one), N m/rad",
+}
+
+
+def add_simulation_options(p: argparse.ArgumentParser, *, no_unmodeled: bool = False) -> None:
+    """The options that choose the simulated robot's joint effects and rate (simulate and
+    evaluate share them; ``no_unmodeled``: the parser has ``--no-unmodeled``)."""
+    g = p.add_argument_group(
+        "simulated joint effects",
+        "Each takes one number (every joint) or one per joint in the robot's joint order, "
+        "comma-separated (slide joints in N and m), and replaces the robot's value. A "
+        "description has none of them unless given (or --description-effects); head and arm "
+        "have their own" + (" unless --no-unmodeled." if no_unmodeled else "."),
+    )
+    for name, what in _EFFECT_OPTIONS.items():
+        g.add_argument(f"--{name}", type=numbers, default=None, metavar="X[,X...]", help=what)
+    g.add_argument(
+        "--description-effects",
+        action="store_true",
+        help="simulate the joint effects the description writes (a URDF's <dynamics damping "
+        "friction>, an MJCF's damping, armature, frictionloss, stiffness)",
+    )
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="control and sampling rate, Hz (default: 420 for head, 480 for arm, 500 for a "
+        "description); a trajectory's period must be a whole number of samples",
+    )
+
+
+def add_simulate(sub) -> argparse.ArgumentParser:
+    """The ``simulate`` sub-command's parser (runs `cmd_simulate`)."""
+    from ..sim import simulate
+
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a robot tracking an excitation and write its log",
+        description="Simulate a robot in MuJoCo tracking a trajectory under computed-torque "
+        "control, with sensor noise, and write a log as a real robot would give it: t, "
+        "q_<joint>, qd_<joint>, tau_<joint> (no accelerations). The robot is the Sarcos-like "
+        "head (7 DoF) or arm (10 DoF), a shipped description (panda_arm, ...) or a URDF or "
+        "MJCF file: its inertials, gravity and joint ranges, its meshes and contacts ignored, "
+        "one torque motor per joint, and no joint friction, damping or armature unless set "
+        "below. Without --trajectory it tracks a random periodic excitation within 60 % of "
+        "each joint range (and 90 % of a URDF's velocity limits).",
+    )
+    p.add_argument(
+        "robot",
+        metavar="ROBOT",
+        help=f"a URDF or MJCF file, a shipped description or {'|'.join(SIMULATED)}",
+    )
+    p.add_argument("--out", required=True, help="output: .csv, .npz or .parquet")
+    p.add_argument("--n-samples", type=int, default=default_of(simulate, "n_samples"),
+                   help="samples at the control rate")  # fmt: skip
+    p.add_argument("--seed", type=int, default=default_of(simulate, "seed"),
+                   help="seed of the excitation and the noise")  # fmt: skip
+    p.add_argument(
+        "--noise-scale",
+        type=float,
+        default=default_of(simulate, "noise_scale"),
+        help="x the default sensor noise (1e-3 rad, 0.02 rad/s, 0.02 N m); 0 for none",
+    )
+    p.add_argument(
+        "--no-unmodeled",
+        action="store_true",
+        help="no armature, dry friction or joint spring (the damping stays: it is modelled)",
+    )
+    p.add_argument("--no-velocity", action="store_true", help="leave out the velocity columns")
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="with .npz: the whole SimulatedLog, ground truth included",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--trajectory",
+        default=None,
+        metavar="PATH",
+        help="track this trajectory.npz from torchjfa excite, its joints matched by name "
+        "(default: a random excitation)",
+    )
+    add_simulation_options(p, no_unmodeled=True)
+    p.set_defaults(func=cmd_simulate)
+    return p
+
+
+def _effects(args, names: tuple[str, ...]) -> dict[str, object]:
+    """The effect options given, each a float or an ``(n_dof,)`` tuple."""
+    out: dict[str, object] = {}
+    for name in _EFFECT_OPTIONS:
+        values = getattr(args, name, None)
+        if values is None:
+            continue
+        if len(values) not in (1, len(names)):
+            raise UsageError(
+                f"--{name} takes 1 or {len(names)} numbers (one per joint, in the order "
+                f"{', '.join(names)}), got {len(values)}"
+            )
+        if any(not v >= 0 or v == float("inf") for v in values):
+            raise UsageError(f"--{name} must be finite and non-negative, got {list(values)}")
+        out[name] = values[0] if len(values) == 1 else values
+    return out
+
+
+def simulated_robot(args, *, unmodeled: bool = True):
+    """The `torchjfa.sim.SimulatedRobot` of ``args.robot`` with the effect options of ``args``
+    (`add_simulation_options`).
+
+    Raises:
+        UsageError: on a description that cannot be simulated or bad effect values.
+    """
+    from ..sim import set_effects
+    from ..sim import simulated_robot as compile_robot
+
+    if args.rate is not None and not args.rate > 0:
+        raise UsageError(f"--rate must be a positive number of Hz, got {args.rate:g}")
+    if args.description_effects and args.robot in SIMULATED:
+        raise UsageError("--description-effects is for a description, not head or arm")
+    try:
+        robot = compile_robot(
+            args.robot, rate=args.rate, unmodeled=unmodeled,
+            description_effects=args.description_effects,
+        )  # fmt: skip
+        set_effects(robot.model, _effects(args, robot.joint_names))
+    except ValueError as exc:
+        raise usage(exc) from None
+    return robot
+
+
+def trajectory_file(path, robot):
+    """The trajectory written by ``torchjfa excite`` (``trajectory.npz``) as the simulator's
+    reference, in the robot's joint order.
+
+    Raises:
+        UsageError: if the file is missing or holds no trajectory, its joints are not the
+            robot's, or it leaves a joint's range.
+    """
+    from ..excitation import FourierTrajectory
+    from ..sim import check_trajectory
+
+    if not Path(path).is_file():
+        raise UsageError(f"no trajectory file {str(path)!r}")
+    try:
+        traj = FourierTrajectory.load(path)
+    except (ValueError, OSError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        why = str(exc) if "torchjfa excite" in str(exc) else "not an .npz file of torchjfa excite"
+        raise UsageError(f"cannot read the trajectory {str(path)!r}: {why}") from None
+    try:
+        sinusoid = traj.reorder(
+            robot.joint_names, owner=f"the simulated {robot.name}"
+        ).to_sinusoid()
+        check_trajectory(sinusoid, robot, name=str(path))
+    except ValueError as exc:
+        raise usage(exc) from None
+    return sinusoid
+
+
+def cmd_simulate(args) -> int:
+    """Run ``torchjfa simulate`` (see `add_simulate`)."""
+    from ..data import JointLog, write_log
+    from ..sim import limit_warnings, simulate
+
+    if not args.noise_scale >= 0:
+        raise UsageError(f"--noise-scale must be non-negative, got {args.noise_scale:g}")
+    robot = simulated_robot(args, unmodeled=not args.no_unmodeled)
+    trajectory = trajectory_file(args.trajectory, robot) if args.trajectory else None
+    try:
+        log = simulate(
+            robot,
+            trajectory=trajectory,
+            n_samples=args.n_samples,
+            noise_scale=args.noise_scale,
+            seed=args.seed,
+            progress=not args.quiet,
+        )
+    except ValueError as exc:
+        raise usage(exc) from None
+    out = Path(args.out)
+    if out.suffix.lower() == ".npz" and args.full:
+        log.save(out)
+    else:
+        kept = JointLog(
+            t=log.t,
+            q=log.q,
+            qd=None if args.no_velocity else log.qd,
+            tau=log.tau,
+            joint_names=log.joint_names,
+        )
+        write_log(kept, out)
+    for line in limit_warnings(robot, log):
+        print(f"warning: {line}", file=sys.stderr)
+    on = [k for k, v in log.effects.items() if any(float(x) != 0.0 for x in v)]
+    print(
+        f"wrote {log.n_samples} samples ({log.n_samples / log.control_rate:.1f} s at "
+        f"{log.control_rate:g} Hz) of the simulated {robot.name} to {out} (joint effects: "
+        f"{', '.join(on) or 'none'}); identify with:\n"
+        f"  torchjfa identify {shlex.quote(robot.name)} {shlex.quote(str(out))} --out result/"
+    )
+    return 0
