@@ -16,6 +16,7 @@ import torch
 
 from ..data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
 from ..dynamics import FRICTION_KINDS, read_transmission
+from ..physical import DEFAULT_PARAMETRIZATION
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
 from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
@@ -424,7 +425,7 @@ class Options:
         True, group="projection", help="skip the projection onto consistent parameters"
     )
     parametrization: str = option(
-        "log-cholesky",
+        DEFAULT_PARAMETRIZATION,
         group="projection",
         choices=("log-cholesky", "virtual"),
         help="the projection's parameters: log-Cholesky, fully consistent (triangle "

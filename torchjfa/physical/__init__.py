@@ -29,6 +29,7 @@ from ._base import parameter_scales as parameter_scales
 from ._convex import ConvexProjection as ConvexProjection
 from ._convex import certify as certify
 from ._convex import project_convex as project_convex
+from ._objective import DEFAULT_PARAMETRIZATION as DEFAULT_PARAMETRIZATION
 from ._project import PARAMETRIZATIONS as PARAMETRIZATIONS
 from ._project import ProjectionResult as ProjectionResult
 from ._project import project as project

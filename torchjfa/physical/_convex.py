@@ -29,7 +29,7 @@ import torch
 
 from ..dynamics._parameters import pseudo_inertia
 from ..dynamics._parametrizations import LogCholeskyParameters
-from ._objective import normalised_problem
+from ._objective import DEFAULT_PARAMETRIZATION, normalised_problem
 from ._optimize import Problem
 
 __all__ = ["ConvexProjection", "certify", "project_convex", "solve_normalised"]
@@ -204,14 +204,16 @@ def solve_normalised(
     # the first one's optimum when that is far below the reference's value
     for _ in range(2):
         unit = g if g > 0 else 1.0
-        cost = cp.sum_squares(factor.T @ (x - x_star.numpy())) / unit
+        # the norm (a second-order cone), not its square: the interior-point solver then sees
+        # the square root of the quadratic's condition number
+        cost = cp.norm(factor.T @ (x - x_star.numpy())) / np.sqrt(unit)
         prog = cp.Problem(cp.Minimize(cost), constraints)
         if solve_quietly(cp, prog, solver) == "solver_error":
             raise ValueError(f"the semidefinite solver {solver} failed")
         if prog.status not in ("optimal", "optimal_inaccurate") or y.value is None:
             raise ValueError(f"the semidefinite solver {solver} stopped with status {prog.status}")
         iters += int(getattr(prog.solver_stats, "num_iters", None) or 0)
-        g_opt = float(prog.value) * unit
+        g_opt = float(prog.value) ** 2 * unit
         if not 0 < g_opt < 1e-2 * unit:
             break
         g = g_opt
@@ -226,7 +228,7 @@ def project_convex(
     moments=None,
     metric=None,
     input_noise=None,
-    parametrization: str = "log-cholesky",
+    parametrization: str = DEFAULT_PARAMETRIZATION,
     prior=None,
     prior_weight: float = 0.0,
     prior_scale=None,

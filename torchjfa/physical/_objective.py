@@ -17,6 +17,7 @@ from ..stats import Moments
 from ._optimize import Problem
 
 __all__ = [
+    "DEFAULT_PARAMETRIZATION",
     "check_non_negative",
     "data_metric",
     "normalised_problem",
@@ -24,6 +25,11 @@ __all__ = [
     "prior_terms",
     "unit_of",
 ]
+
+#: the projection's parametrisation unless one is asked for (`torchjfa.physical.project`,
+#: `project_convex`, `torchjfa.Options`): log-Cholesky, fully consistent (triangle
+#: inequalities too)
+DEFAULT_PARAMETRIZATION = "log-cholesky"
 
 
 def data_metric(moments, metric, input_noise, d: int, device) -> torch.Tensor:

@@ -23,10 +23,21 @@ from torch import nn
 from ..dynamics._consistency import ConsistencyReport, check
 from ..dynamics._parametrizations import LogCholeskyParameters, VirtualParameters
 from ..stats import Moments
-from ._objective import check_non_negative, normalised_problem, objective_terms
+from ._objective import (
+    DEFAULT_PARAMETRIZATION,
+    check_non_negative,
+    normalised_problem,
+    objective_terms,
+)
 from ._optimize import Problem, minimise, single_thread, theta_fn
 
-__all__ = ["ProjectionResult", "project", "unconstrained_projection", "PARAMETRIZATIONS"]
+__all__ = [
+    "DEFAULT_PARAMETRIZATION",
+    "PARAMETRIZATIONS",
+    "ProjectionResult",
+    "project",
+    "unconstrained_projection",
+]
 
 PARAMETRIZATIONS = {"virtual": VirtualParameters, "log-cholesky": LogCholeskyParameters}
 
@@ -126,7 +137,7 @@ def project(
     moments: Moments | None = None,
     metric=None,
     input_noise=None,
-    parametrization: str = "virtual",
+    parametrization: str = DEFAULT_PARAMETRIZATION,
     prior=None,
     prior_weight: float = 0.0,
     prior_scale=None,
@@ -211,9 +222,9 @@ def project(
         metric: the matrix M, ``(n_params, n_params)`` symmetric PSD, instead of ``moments``.
         input_noise: per-column input-noise variance, scalar or ``(n_params,)`` (only with
             ``moments``), in the squared units of the regressor columns.
-        parametrization: ``"virtual"`` (eq. 5: mass >= 0, PSD inertia at the centre of mass,
-            friction >= 0) or ``"log-cholesky"`` (positive definite pseudo-inertia: also the
-            triangle inequalities).
+        parametrization: ``"log-cholesky"`` (`DEFAULT_PARAMETRIZATION`: positive definite
+            pseudo-inertia, so the triangle inequalities hold too) or ``"virtual"`` (eq. 5:
+            mass >= 0, PSD inertia at the centre of mass, friction >= 0).
         prior: nominal (e.g. CAD) parameters, ``(n_params,)``; needs ``prior_weight > 0``.
         prior_weight: weight of the prior term, dimensionless (see above).
         prior_scale: ``(n_params,)`` positive per-parameter scales of the prior term (see
@@ -227,14 +238,16 @@ def project(
         verbose: show a progress bar and print the result table.
         solver: ``"sdp"``: the problem is first solved as the convex program it is in theta
             (a quadratic cost, a linear matrix inequality per body, each body strictly inside
-            by a margin of 1e-7 of its own size: `torchjfa.physical.project_convex`) by a
+            by a margin of 1e-8 of its own size: `torchjfa.physical.project_convex`) by a
             semidefinite solver (cvxpy with Clarabel), and that global optimum is one more
             start for LBFGS, which then polishes it in the parametrisation; the description's
             values where the data are silent come from there (LBFGS alone can stall at a
-            vanishing mass). The program is solved once more in the units of LBFGS's answer
-            (an optimum far from theta_hat's sizes, a barely excited body's, is out of the
-            first solve's reach) and polished again when that is lower. ``"lbfgs"``: the
-            starts above only (a local optimum of a non-convex problem).
+            vanishing mass). The interior-point method's accuracy is relative to the units
+            it works in, so the program is solved again in the units of LBFGS's answer (an
+            optimum far from theta_hat's sizes, a barely excited body's, is out of the first
+            solve's reach) and polished again while that finds a lower point, up to four
+            rounds: the answer stands when the program in its own units finds nothing lower.
+            ``"lbfgs"``: the starts above only (a local optimum of a non-convex problem).
             `torchjfa.physical.certify` compares the result with the convex optimum.
 
     Returns:
@@ -278,10 +291,19 @@ def project(
     fitted, n_iter, n_eval, converged = _solve(
         cls, layout, problem, **solve, verbose=verbose, start=start
     )
-    if solver == "sdp" and not _consistent_as_given(cls, layout, problem):
+    for _ in range(_SDP_ROUNDS if solver == "sdp" else 0):
+        if _consistent_as_given(cls, layout, problem):
+            break
+        with torch.no_grad():
+            before = float(problem.loss(fitted()))
         fitted, more = _rescaled_sdp(cls, layout, problem, parametrization, fitted, solve)
         n_iter, n_eval = n_iter + more[0], n_eval + more[1]
-        converged = converged if more[2] is None else more[2]
+        if more[2] is None:  # the program in the answer's units finds nothing lower
+            break
+        converged = more[2]
+        with torch.no_grad():
+            if float(problem.loss(fitted())) > before * (1.0 - _ROUND_GAIN):
+                break  # a gain far below the certificate's tolerance: no further round
     result = _result(
         cls,
         fitted,
@@ -456,6 +478,13 @@ def _solve(cls, layout, problem: Problem, *, warm_start, max_iter, tol, verbose,
 #: how much lower (in the normalised loss, O(1)) the second solve's answer must be to replace
 #: the first: above round-off, far below the certificate's 1e-6
 _LOWER = 1e-10
+#: the most rounds of "semidefinite program in the units of the answer, then LBFGS from its
+#: optimum": each round's program sees the optimum more sharply (the interior-point method's
+#: accuracy is relative to its units), and the rounds stop when it finds nothing lower
+_SDP_ROUNDS = 4
+#: a round that lowers the loss by less than this fraction is the last (1 % of the
+#: certificate's 1e-6: further rounds would follow round-off, not the optimum)
+_ROUND_GAIN = 1e-8
 
 
 def _rescaled_sdp(cls, layout, problem: Problem, parametrization: str, fitted, solve: dict):
