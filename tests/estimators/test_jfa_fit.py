@@ -1,5 +1,6 @@
-"""The (Bayesian) JFA fit as tensor ops: identities of the bound, one answer whatever the
-chunking or batching, and the closed form of maximum likelihood."""
+"""The (Bayesian) JFA fit as tensor ops: identities of the bound, the Newton optimiser's step
+and prune move against dense and brute-force references, one answer whatever the chunking,
+and the closed form of maximum likelihood."""
 
 import math
 
@@ -8,7 +9,6 @@ import torch
 
 from torchjfa.estimators import JFA, BayesianJFA
 from torchjfa.estimators import _jfa_em as je
-from torchjfa.estimators import _jfa_fit as jf
 from torchjfa.estimators import _jfa_model as jm
 from torchjfa.estimators import _jfa_newton as jn
 from torchjfa.estimators import _jfa_prune as jp
@@ -58,6 +58,24 @@ def _one(st):
     return jm.State(*(t[None] for t in st))
 
 
+def _dense_hessian(cv, xx):
+    """The Hessian of eq. 14 as a dense ``(B, P, P)`` matrix from `Curvature` and the moments
+    ``xx (B, d, d)``: each input's block plus ``J^T G J`` (the reference of the structured
+    solve)."""
+    B, r, d = cv.jk.shape
+    blocks = torch.diag_embed(cv.hb).permute(0, 1, 3, 2, 4).reshape(B, r * d, r * d)
+    H = torch.nn.functional.pad(blocks, (0, 1, 0, 1))
+    H[:, -1, -1] = cv.hpsy
+    Jk = torch.diag_embed(cv.jk).permute(0, 2, 1, 3).reshape(B, d, r * d)
+    Jc = torch.cat([cv.jq.reshape(B, 1, r * d), cv.psy[:, None, None]], -1)
+    J = torch.cat([torch.nn.functional.pad(Jk, (0, 1)), Jc], -2)
+    G = torch.zeros(B, d + 1, d + 1, dtype=xx.dtype)  # the Hessian of h(k, c)
+    G[:, :d, :d] = -xx / cv.c[:, None, None]
+    G[:, :d, d] = G[:, d, :d] = cv.gkc
+    G[:, d, d] = cv.gcc
+    return H + J.mT @ G @ J
+
+
 @pytest.mark.parametrize("ard", ["shared", "output"])
 @pytest.mark.parametrize("fixed_x", [False, True])
 def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(ard, fixed_x):
@@ -65,7 +83,7 @@ def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(
     S = _standardised(X, y)
     cfg = _settings(ard, fixed_x)
     psx = torch.full((4,), 0.3, dtype=F64) if fixed_x else None
-    st = je.first_sweep(S, psx, cfg)
+    st = jm.first_sweep(S, psx, cfg)
     for _ in range(6):
         es, full = jm.estep(S, st, cfg)
         # two code paths, one bound: the E-step's (Q(z, t) explicit) and the collapsed one
@@ -76,17 +94,17 @@ def test_reduced_bound_equals_the_estep_bound_and_its_derivatives_are_autograds(
     # the structured gradient and Hessian of the Newton optimiser against plain autograd, at
     # the EM state and at one moved off it (every coordinate, so no term of
     # `_jfa_newton.input_curvature` sits at a special value)
-    x0 = jn.to_coords(_one(st), cfg)[0]
+    x0 = jm.to_coords(_one(st), cfg)[0]
     pc = st.psx[None]
     batch = _batch(S)
     shift = 0.3 * torch.randn(x0.shape, generator=torch.Generator().manual_seed(1), dtype=F64)
 
     def f(x):
-        return jn.coords_bound(x[None], batch, pc, cfg)[0]
+        return jm.coords_bound(x[None], batch, pc, cfg)[0]
 
     for x in (x0, x0 + shift):
         cv = jn.derivatives(x[None], batch, pc, cfg)
-        g, H = cv.g, jn.dense_hessian(cv, batch.xx)
+        g, H = cv.g, _dense_hessian(cv, batch.xx)
         g_ref = torch.func.grad(f)(x)
         H_ref = torch.autograd.functional.hessian(f, x)
         torch.testing.assert_close(g[0], g_ref, rtol=1e-12, atol=1e-12 * float(g_ref.abs().max()))
@@ -132,30 +150,6 @@ def test_any_chunking_gives_one_answer_at_default_settings(variant):
         assert float(other.lower_bound_[-1]) == pytest.approx(
             float(whole.lower_bound_[-1]), rel=1e-8
         )
-
-
-@pytest.mark.parametrize("ard", ["shared", "output"])
-@pytest.mark.parametrize("fixed_x", [False, True])
-def test_a_batch_of_problems_gives_the_single_fits(ard, fixed_x):
-    cfg = _settings(ard, fixed_x)
-    problems = [_data(400 + 100 * i, 5, seed=10 + i, n_irrelevant=i % 3) for i in range(4)]
-    stats = [_standardised(X, y) for X, y in problems]
-    noise = [torch.full((5,), 0.3 + 0.05 * i, dtype=F64) for i in range(4)] if fixed_x else None
-    kw = dict(method="newton", max_iter=500, tol=1e-12, coef_tol=1e-9)
-    singles = [
-        jf.fit(S, None if noise is None else noise[i], cfg, **kw) for i, S in enumerate(stats)
-    ]
-    batch = jm.Stats(*(torch.stack(t).reshape(2, 2, *t[0].shape) for t in zip(*stats, strict=True)))
-    psx = None if noise is None else torch.stack(noise).reshape(2, 2, 5)
-    res = jf.fit(batch, psx, cfg, **kw)
-    assert res.state.mz.shape == (2, 2, 5) and res.n_iter.shape == (2, 2)
-    for i, one in enumerate(singles):
-        j = divmod(i, 2)
-        assert int(one.reason) == 1 and int(res.reason[j]) == 1
-        for got, want in zip(res.state, one.state, strict=True):
-            torch.testing.assert_close(got[j], want, rtol=1e-10, atol=1e-12)
-        last = res.history[j][int(res.n_iter[j]) - 1]
-        assert float(last) == pytest.approx(float(one.history[-1]), rel=1e-12)
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
@@ -213,7 +207,7 @@ def _early_states(d, seed, cfg, fixed_x, sweeps):
     X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=seed == 1)
     S = _standardised(X, y)
     psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
-    st = je.first_sweep(S, psx, cfg)
+    st = jm.first_sweep(S, psx, cfg)
     for _ in range(sweeps):
         st = jm.update(S, st, jm.estep(S, st, cfg)[0], cfg)
         yield S, st
@@ -251,10 +245,10 @@ def test_the_structured_newton_step_is_the_dense_one(ard, fixed_x):
     verdicts = set()
     for seed in range(3):
         for it, (S, st) in enumerate(_early_states(d, seed, cfg, fixed_x, 4)):
-            x = jn.to_coords(_one(st), cfg)
+            x = jm.to_coords(_one(st), cfg)
             batch = _batch(S)
             cv = jn.derivatives(x, batch, st.psx[None], cfg)
-            H = jn.dense_hessian(cv, batch.xx)
+            H = _dense_hessian(cv, batch.xx)
             # hold a few coordinates: the bound at x where the gradient points below it
             lb = torch.where(
                 (cv.g <= 0) & (torch.arange(x.shape[-1]) % 3 == it % 3), x, -torch.inf
@@ -285,8 +279,8 @@ def test_the_damping_is_the_first_of_nielsens_sequence_with_a_definite_matrix(ar
     for seed in range(3):
         X, y = _data(300, d, seed=seed, n_irrelevant=2, redundant=True)
         S = _standardised(X, y)
-        st = je.first_sweep(S, None, cfg)
-        x = jn.to_coords(_one(st), cfg)
+        st = jm.first_sweep(S, None, cfg)
+        x = jm.to_coords(_one(st), cfg)
         batch = _batch(S)
         cv = jn.derivatives(x, batch, st.psx[None], cfg)
         lb = torch.full(x.shape[-1:], -torch.inf, dtype=F64)
@@ -314,7 +308,7 @@ def test_the_damping_is_the_first_of_nielsens_sequence_with_a_definite_matrix(ar
 @pytest.mark.parametrize("variant", sorted(VARIANTS) + ["ml"])
 def test_fit_batch_gives_each_problem_its_single_fit(variant):
     """The public batched fit: problem by problem what fit_moments gives (1e-10), including a
-    problem with a constant column (fitted in a batch of its own active columns)."""
+    problem with a constant column."""
     d = 6
     kw = dict(VARIANTS.get(variant, {}))
     if kw.pop("input_noise", False):
@@ -350,7 +344,7 @@ def test_fit_batch_refuses_mixed_widths_and_nothing():
 
 
 def test_the_jackknife_of_bayesian_jfa_is_its_single_refits():
-    """The jackknife fits Bayesian JFA's K refits in one batch: the same spread as K refits."""
+    """The jackknife fits Bayesian JFA's K refits with fit_batch: the same spread as K refits."""
     from torchjfa.estimators import jackknife
     from torchjfa.estimators._jackknife import refit_without
 
@@ -372,8 +366,8 @@ def _mid_fit(ard, fixed_x, seed=1, d=6):
     X, y = _data(400, d, seed=seed, n_irrelevant=3, redundant=True)
     S = _standardised(X, y)
     psx = torch.full((d,), 0.3, dtype=F64) if fixed_x else None
-    res = jf.fit(S, psx, cfg, method="em", max_iter=40, tol=0.0, coef_tol=0.0)
-    return _batch(S), cfg, jn.to_coords(_one(res.state), cfg), res.state.psx[None]
+    res = je.run_em(S, jm.first_sweep(S, psx, cfg), cfg, max_iter=40, tol=0.0, coef_tol=0.0)
+    return _batch(S), cfg, jm.to_coords(_one(res.state), cfg), res.state.psx[None]
 
 
 @pytest.mark.parametrize("ard", ["shared", "output"])
@@ -384,11 +378,11 @@ def test_each_single_prunes_gain_is_the_change_of_the_bound(ard, fixed_x):
     round-off; both signs occur."""
     S, cfg, x, psx = _mid_fit(ard, fixed_x)
     cand = jp.candidates(x, S, psx, cfg)
-    L0 = jn.coords_bound(x, S, psx, cfg)
+    L0 = jm.coords_bound(x, S, psx, cfg)
     d = S.xy.shape[-1]
     exact = torch.stack(
         [
-            jn.coords_bound(jp.with_prunes(cand, torch.arange(d) == m, cfg), S, psx, cfg) - L0
+            jm.coords_bound(jp.with_prunes(cand, torch.arange(d) == m, cfg), S, psx, cfg) - L0
             for m in range(d)
         ],
         -1,
@@ -409,11 +403,11 @@ def test_greedy_prunes_are_the_sequence_of_best_exact_prunes(ard):
         cand = jp.candidates(x, S, psx, cfg)
         thr = torch.tensor([0.01], dtype=F64)
         pick = torch.zeros(d, dtype=torch.bool)
-        L = jn.coords_bound(x, S, psx, cfg)[0]
+        L = jm.coords_bound(x, S, psx, cfg)[0]
         while True:
             trial = [pick | (torch.arange(d) == m) for m in range(d)]
             gains = torch.stack(
-                [jn.coords_bound(jp.with_prunes(cand, t, cfg), S, psx, cfg)[0] - L for t in trial]
+                [jm.coords_bound(jp.with_prunes(cand, t, cfg), S, psx, cfg)[0] - L for t in trial]
             )
             gains = torch.where(pick, -torch.inf, gains)
             assert bool(((gains - thr).abs() > 1e-6).all())  # no call on round-off
@@ -433,7 +427,7 @@ def test_pruned_variances_are_stationary_where_both_loadings_are_pruned():
     cand = jp.candidates(x, S, psx, cfg)
     d = S.xy.shape[-1]
     xp = jp.with_prunes(cand, torch.ones(d, dtype=torch.bool), cfg).requires_grad_(True)
-    (g,) = torch.autograd.grad(jn.coords_bound(xp, S, psx, cfg).sum(), xp)
+    (g,) = torch.autograd.grad(jm.coords_bound(xp, S, psx, cfg).sum(), xp)
     assert float(g[0, 2 * d : 4 * d].abs().max()) < 1e-6
 
 
@@ -447,16 +441,17 @@ def test_a_fit_with_prunes_ends_at_a_stationary_point_of_the_whole_bound(fixed_x
     X, y = _data(2000, d, seed=3, n_irrelevant=n_irr)
     S = _standardised(X, y)
     psx = torch.full((d,), 0.5 / 1.5, dtype=F64) if fixed_x else None
-    res = jf.fit(S, psx, cfg, method="newton", max_iter=2000, tol=1e-12, coef_tol=1e-9)
-    assert int(res.reason) == 1  # converged
+    st = jm.first_sweep(S, psx, cfg)
+    res = jn.run_newton(S, st, cfg, max_iter=2000, tol=1e-12, coef_tol=1e-9)
+    assert res.reason == 1  # converged
     mz = res.state.mz
     pruned = mz.abs() < 1e-2
     assert int(pruned.sum()) >= 3  # the irrelevant inputs were pruned
     assert bool((mz != 0).all())
-    x = jn.to_coords(_one(res.state), cfg)
+    x = jm.to_coords(_one(res.state), cfg)
     batch = _batch(S)
     cv = jn.derivatives(x, batch, res.state.psx[None], cfg)
-    H = jn.dense_hessian(cv, batch.xx)[0]
+    H = _dense_hessian(cv, batch.xx)[0]
     lb = torch.full(x.shape[-1:], -torch.inf, dtype=F64)  # the floors, as in the fit
     lb[4 * d : (5 if fixed_x else 6) * d] = math.log(cfg.noise_floor)
     lb[-1] = math.log(cfg.noise_y_floor)

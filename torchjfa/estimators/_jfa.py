@@ -7,11 +7,15 @@ output is ``y = sum_m z_m + noise`` with ``z_m = w_zm t_m + noise``. Use these e
 the regressors themselves are noisy (joint velocities and accelerations of a robot): `BayesianJFA`
 also prunes irrelevant and redundant inputs (automatic relevance determination).
 
-Both are fitted from the sufficient statistics ``N, X^T X, X^T y, y^T y`` alone, as batched
-tensor ops: `JFA` at the closed-form maximum of its likelihood, `BayesianJFA` by Newton steps on
-its variational bound with prune moves, which converge in tens to hundreds of iterations where
-the plain EM (``method="em"``, kept as the reference) needs thousands. ``docs/theory.md``
-derives the model, the bound, the updates and the optimiser; the code cites its equations.
+Both are fitted from the sufficient statistics ``N, X^T X, X^T y, y^T y`` alone: `JFA` at the
+closed-form maximum of its likelihood, `BayesianJFA` by Newton steps on its variational bound
+with prune moves, which converge in tens to hundreds of iterations where the plain EM
+(``method="em"``, kept as the reference) needs thousands. ``docs/theory.md`` derives the model,
+the bound, the updates and the optimiser; the code cites its equations. This module holds the
+estimators (checks, standardisation, results in the caller's units); the maths is in
+``_jfa_model.py`` (the model, its E-step, updates and bounds), ``_jfa_newton.py`` (the Newton
+optimiser and its loop), ``_jfa_prune.py`` (its prune move) and ``_jfa_em.py`` (plain EM and
+maximum likelihood's closed form).
 
 Known limit (``docs/theory.md``, "What the data do not decide"): the de-noised slope
 ``w_z / w_x`` is not identified from second moments; the prior (or the starting point, for
@@ -31,10 +35,10 @@ import torch
 from .._util import progress_bar
 from .._validation import as_tensor, check_finite, check_X
 from ..stats import Moments, as_folds
-from . import _jfa_fit
 from . import _jfa_model as jm
 from ._base import LinearEstimator
-from ._jfa_em import REASONS, Result
+from ._jfa_em import ml_closed_form, run_em
+from ._jfa_newton import run_newton
 
 __all__ = ["JFA", "BayesianJFA"]
 
@@ -42,6 +46,8 @@ __all__ = ["JFA", "BayesianJFA"]
 # var(x) - psi_x once psi_x is known; this only keeps the prior proper)
 _OUTPUT_ARD_WX_PRECISION = 1e-8
 _ROUNDOFF_RMS = 1e-10
+# method -> the fit, from the state after the first sweep
+_FITS = {"newton": run_newton, "em": run_em, "closed_form": ml_closed_form}
 
 
 def _check_noise_below_variance(noise, active, variance, centred: bool) -> None:
@@ -74,56 +80,32 @@ class _JFABase(LinearEstimator):
 
     _methods: tuple[str, ...] = ()
 
-    def __init__(
-        self,
-        *,
-        max_iter: int,
-        tol: float,
-        coef_tol: float,
-        input_noise=None,
-        noise_floor: float,
-        noise_y_floor: float,
-        method: str,
-        fit_intercept: bool,
-        verbose: bool,
-    ) -> None:
-        super().__init__(fit_intercept=fit_intercept)
-        self.max_iter = max_iter
-        self.tol = tol
-        self.coef_tol = coef_tol
-        self.input_noise = input_noise
-        self.noise_floor = noise_floor
-        self.noise_y_floor = noise_y_floor
-        self.method = method
-        self.verbose = verbose
-
     # ------------------------------------------------------------------ public API
     def fit_moments(self, moments: Moments | Sequence[Moments]):
-        """Fit from sufficient statistics (a `Moments`, or fold `Moments` that are summed).
+        """Fit from sufficient statistics (a `Moments`, or fold `Moments` that are summed):
+        the standardised moments by the fit ``method`` names, from the state after the first
+        EM sweep (eq. 10), mapped back to the caller's units.
 
         Returns:
             ``self``.
         """
-        prep = self._prepare(moments)
-        res = self._run(prep[0], prep[1])
-        self._store(res, *prep[2:])
+        S, psx_fixed, *units = self._prepare(moments)
+        cfg = self._settings()
+        kw = dict(max_iter=int(self.max_iter), tol=float(self.tol), coef_tol=float(self.coef_tol))
+        bar = progress_bar(total=int(self.max_iter), desc=type(self).__name__, enabled=self.verbose)
+        with bar:
+            st = jm.first_sweep(S, psx_fixed, cfg)
+            res = _FITS[self.method](S, st, cfg, bar=bar if self.verbose else None, **kw)
+            if self.verbose:
+                bar.total = bar.n  # converged before the cap: the bar ends full
+                bar.refresh()
+        self._store(res, *units)
         return self
 
     def fit_batch(self, problems: Sequence[Moments | Sequence[Moments]]) -> list:
-        """Fit one copy of this estimator to each of several problems, in one batched call.
-
-        The problems' standardised statistics are stacked, ``(B, d, d)``, and fitted together
-        by the tensor ops of `fit_moments` (the jackknife's refits, cross-validation folds, the
-        trials of an experiment), in a fraction of the time of separate calls, whose cost is
-        mostly per-operation overhead. Problem by problem the result is `fit_moments`'s up to
-        round-off where the bound has one optimum (small and well-conditioned problems;
-        maximum likelihood; plain EM for a fixed number of sweeps). Where it has several (large
-        problems with redundant inputs, ``docs/theory.md``, "Batches and optima"), a
-        rounding difference between a batched and a single product can send a problem to
-        another optimum, of a bound a few nats higher or lower, and ``coef_`` differs there
-        (``scripts/bench_estimators.py`` prints how many of its 64 problems agree). Problems
-        whose active columns differ (a column constant in one of them) are fitted in separate
-        batches.
+        """Fit one copy of this estimator to each of several problems (the jackknife's refits,
+        cross-validation folds, the trials of an experiment): `fit_moments` on each, so each
+        result is its single fit's.
 
         Args:
             problems: a sequence of `Moments` (or of fold `Moments`, summed), all with the
@@ -136,27 +118,10 @@ class _JFABase(LinearEstimator):
         problems = list(problems)
         if not problems:
             raise ValueError("fit_batch needs at least one problem")
-        preps = [self._prepare(p) for p in problems]
-        widths = {int(prep[-1].n_features) for prep in preps}
+        widths = sorted({int(as_folds(p)[0].n_features) for p in problems})
         if len(widths) > 1:
-            raise ValueError(
-                f"fit_batch needs problems of one width; got {sorted(widths)} features"
-            )
-        groups: dict[tuple, list[int]] = {}
-        for i, prep in enumerate(preps):
-            groups.setdefault(tuple(prep[2].tolist()), []).append(i)
-        fitted: list = [None] * len(problems)
-        for members in groups.values():
-            stats = (preps[i][0] for i in members)
-            S = jm.Stats(*(torch.stack(t) for t in zip(*stats, strict=True)))
-            fixed = [preps[i][1] for i in members]
-            res = self._run(S, None if fixed[0] is None else torch.stack(fixed))
-            for j, i in enumerate(members):
-                one = Result(jm.State(*(t[j] for t in res.state)), *(t[j] for t in res[1:]))
-                est = copy.deepcopy(self)
-                est._store(one, *preps[i][2:])
-                fitted[i] = est
-        return fitted
+            raise ValueError(f"fit_batch needs problems of one width; got {widths} features")
+        return [copy.deepcopy(self).fit_moments(p) for p in problems]
 
     def _prepare(self, moments: Moments | Sequence[Moments]):
         """Check the settings and the statistics of one problem and standardise them:
@@ -241,33 +206,12 @@ class _JFABase(LinearEstimator):
             fixed_x=self.input_noise is not None,
         )
 
-    def _run(self, S: jm.Stats, psx_fixed: torch.Tensor | None) -> Result:
-        """The fit (``_jfa_fit.fit``) of the standardised moments, with a progress bar."""
-        cfg = replace(self._settings(), fixed_x=psx_fixed is not None)
-        bar = progress_bar(total=int(self.max_iter), desc=type(self).__name__, enabled=self.verbose)
-        with bar:
-            res = _jfa_fit.fit(
-                S,
-                psx_fixed,
-                cfg,
-                method=self.method,
-                max_iter=int(self.max_iter),
-                tol=float(self.tol),
-                coef_tol=float(self.coef_tol),
-                bar=bar if self.verbose else None,
-            )
-            if self.verbose:
-                bar.total = bar.n  # converged before the cap: the bar ends full
-                bar.refresh()
-        return res
-
-    def _store(self, res: Result, active, sx, sy, m: Moments, total: Moments) -> None:
+    def _store(self, res: jm.Result, active, sx, sy, m: Moments, total: Moments) -> None:
         """Map the standardised solution back to the caller's units, zeros for constant columns."""
         d = total.n_features
         kw = {"dtype": torch.float64, "device": total.xtx.device}
         cfg = self._settings()
         st = res.state
-        n_iter = int(res.n_iter)
 
         def full(v, fill=0.0):
             out = torch.full((d,), fill, **kw)
@@ -296,9 +240,9 @@ class _JFABase(LinearEstimator):
             self.intercept_noisy_ = torch.zeros((), **kw)
         # the bound on log p(X, y) in the caller's units: the change of variables adds -N log|J|
         jac = m.n * (torch.log(sx).sum() + torch.log(sy))
-        self.lower_bound_ = res.history[:n_iter] - jac
-        self.n_iter_ = n_iter
-        self.stop_reason_ = REASONS[int(res.reason)]
+        self.lower_bound_ = res.history - jac
+        self.n_iter_ = res.n_iter
+        self.stop_reason_ = jm.REASONS[res.reason]
         self.converged_ = self.stop_reason_ != "max_iter"
 
 
@@ -358,17 +302,10 @@ class JFA(_JFABase):
         fit_intercept: bool = True,
         verbose: bool = False,
     ) -> None:
-        super().__init__(
-            max_iter=max_iter,
-            tol=tol,
-            coef_tol=coef_tol,
-            input_noise=input_noise,
-            noise_floor=noise_floor,
-            noise_y_floor=noise_y_floor,
-            method=method,
-            fit_intercept=fit_intercept,
-            verbose=verbose,
-        )
+        super().__init__(fit_intercept=fit_intercept)
+        self.max_iter, self.tol, self.coef_tol = max_iter, tol, coef_tol
+        self.input_noise, self.noise_floor = input_noise, noise_floor
+        self.noise_y_floor, self.method, self.verbose = noise_y_floor, method, verbose
 
 
 class BayesianJFA(_JFABase):
@@ -398,7 +335,7 @@ class BayesianJFA(_JFABase):
             so its answer moves with the iteration count and the chunking of the data; the
             Newton optimiser's converges quadratically and agrees whatever the chunking, to
             round-off, unless round-off early in the path led to another optimum of the bound
-            (``docs/theory.md``, "Batches and optima").
+            (``docs/theory.md``, "Optima and round-off").
         a0: shape of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
         b0: rate of the Gamma prior of every ``alpha_m`` (1e-8: nearly flat).
         input_noise: optional known noise variance of each input, shape ``(d,)``, in the
@@ -489,20 +426,11 @@ class BayesianJFA(_JFABase):
         fit_intercept: bool = True,
         verbose: bool = False,
     ) -> None:
-        super().__init__(
-            max_iter=max_iter,
-            tol=tol,
-            coef_tol=coef_tol,
-            input_noise=input_noise,
-            noise_floor=noise_floor,
-            noise_y_floor=noise_y_floor,
-            method=method,
-            fit_intercept=fit_intercept,
-            verbose=verbose,
-        )
-        self.a0 = a0
-        self.b0 = b0
-        self.ard = ard
+        super().__init__(fit_intercept=fit_intercept)
+        self.max_iter, self.tol, self.coef_tol = max_iter, tol, coef_tol
+        self.input_noise, self.noise_floor = input_noise, noise_floor
+        self.noise_y_floor, self.method, self.verbose = noise_y_floor, method, verbose
+        self.a0, self.b0, self.ard = a0, b0, ard
 
     def _check_params(self, n_features: int | None = None) -> None:
         super()._check_params(n_features)

@@ -1,11 +1,12 @@
 """The (Bayesian) JFA regression model from moments: settings, state, E-step, updates, bounds.
 
-Pure tensor functions behind `torchjfa.estimators.JFA` and `BayesianJFA`, for any leading batch
-shape of problems. Every quantity is in standardised units (each column of ``X`` and ``y``
-scaled to unit variance); dtype and device come from the moments. The equation numbers are
-those of ``docs/theory.md``, which derives everything here. ``_jfa_em.py`` (plain EM,
-maximum likelihood's closed form) and ``_jfa_newton.py`` (the Newton optimiser) drive these
-functions; fit through them.
+Pure tensor functions behind `torchjfa.estimators.JFA` and `BayesianJFA`: what the model is,
+not how it is fitted. Every quantity is in standardised units (each column of ``X`` and ``y``
+scaled to unit variance); dtype and device come from the moments, and any leading batch shape
+works. The equation numbers are those of ``docs/theory.md``, which derives everything here.
+The optimisers use these functions: ``_jfa_newton.py`` (Bayesian JFA's default, on the
+coordinates defined at the end of this module), ``_jfa_prune.py`` (its prune move) and
+``_jfa_em.py`` (plain EM, maximum likelihood's closed form).
 """
 
 from __future__ import annotations
@@ -84,13 +85,17 @@ class State(NamedTuple):
     psy: torch.Tensor
 
 
-def where(mask: torch.Tensor, a: tuple, b: tuple) -> tuple:
-    """Problem by problem (``mask (*batch,)``), the fields of ``a`` where True, else ``b``'s."""
-    pick = [
-        torch.where(mask.reshape(mask.shape + (1,) * (x.ndim - mask.ndim)), x, y)
-        for x, y in zip(a, b, strict=True)
-    ]
-    return type(a)(*pick)
+REASONS = ("max_iter", "bound", "coef")
+
+
+class Result(NamedTuple):
+    """A fit: the final ``state``; ``history (n_iter,)`` the bound after each iteration (the
+    first at the starting state), nats; ``n_iter``; ``reason``, an index of `REASONS`."""
+
+    state: State
+    history: torch.Tensor
+    n_iter: int
+    reason: int
 
 
 @functools.lru_cache(maxsize=64)
@@ -225,6 +230,13 @@ def update(S: Stats, st: State, es: EStep, cfg: Settings) -> State:
     return State(mz, mx, vz, vx, rate, psz, psx, psy)
 
 
+def first_sweep(S: Stats, psx_fixed: torch.Tensor | None, cfg: Settings) -> State:
+    """The state after one sweep from `initial_state` (whose zero variances have no bound):
+    where every fit starts."""
+    st = initial_state(S, psx_fixed, cfg)
+    return update(S, st, estep(S, st, cfg)[0], cfg)
+
+
 def data_terms(mz, mx, vz, vx, psz, psx):
     """What the data see of each input (eq. 12), ``(*batch, d)`` each: ``(kappa, v, k, q)``,
     ``kappa = 1 + V_z / psi_z + V_x / psi_x``, the model's variance ``v`` of ``x_m``, the
@@ -289,3 +301,30 @@ def coef(st: State, cfg: Settings) -> torch.Tensor:
 def predictor(st: State) -> torch.Tensor:
     """The noisy-input predictor ``k`` (eq. 11) of a state, ``(*batch, d)``."""
     return data_terms(st.mz, st.mx, st.vz, st.vx, st.psz, st.psx)[2]
+
+
+# ------------------------------------------------------------------------------ coordinates
+def to_coords(st: State, cfg: Settings) -> torch.Tensor:
+    """The coordinates ``(B, P)`` of a state ``(B, d)`` on which the Newton optimiser works:
+    each input's ``<w_z>, <w_x>, log V_z, log V_x, log psi_z`` and (unless fixed) ``log psi_x``,
+    row after row, then ``log psi_y``: ``P = r d + 1`` with ``r`` = 6 or 5."""
+    rows = [st.mz, st.mx] + [torch.log(st.vz), torch.log(st.vx), torch.log(st.psz)]
+    rows += [] if cfg.fixed_x else [torch.log(st.psx)]
+    return torch.cat(rows + [torch.log(st.psy)[:, None]], -1)
+
+
+def from_coords(x: torch.Tensor, psx: torch.Tensor, cfg: Settings) -> State:
+    """The state of coordinates ``x (B, P)``, Q(alpha) at its optimum; ``psx (B, d)`` is used
+    where psi_x is fixed."""
+    d = psx.shape[-1]
+    mz, mx = x[:, :d], x[:, d : 2 * d]
+    vz, vx, psz = (torch.exp(x[:, i * d : (i + 1) * d]) for i in (2, 3, 4))
+    psx = psx if cfg.fixed_x else torch.exp(x[:, 5 * d : 6 * d])
+    rate = optimal_rate(mz, mx, vz, vx, cfg)
+    return State(mz, mx, vz, vx, rate, psz, psx, torch.exp(x[:, -1]))
+
+
+def coords_bound(x: torch.Tensor, S: Stats, psx: torch.Tensor, cfg: Settings) -> torch.Tensor:
+    """The collapsed bound (eq. 12) at coordinates ``x (B, P)``, ``(B,)``."""
+    st = from_coords(x, psx, cfg)
+    return collapsed_bound(S, st.mz, st.mx, st.vz, st.vx, st.psz, st.psx, st.psy, cfg)

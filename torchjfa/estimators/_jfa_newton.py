@@ -1,14 +1,16 @@
-"""Bayesian JFA's optimiser: damped Newton steps on the collapsed bound, with prune moves.
+"""Bayesian JFA's default optimiser: damped Newton steps on the collapsed bound, with prunes.
 
-The bound with Q(z, t) and Q(alpha) optimised out (``docs/theory.md``, eq. 12) is a
-smooth function of each input's ``<w_z>, <w_x>, log V_z, log V_x, log psi_z`` and (unless
-fixed) ``log psi_x``, and of ``log psi_y``: the *coordinates*, ``(B, P)`` with ``P = r d + 1``.
-It is a sum of each input's own terms plus a function of the predictor ``k`` and of ``c``
-(eq. 14), so its Hessian is block-diagonal plus a ``(d + 1) x (d + 1)`` coupling; `newton_step`
-solves the damped Newton system through that structure (eq. 15) in ``O(r^3 d + d^3)``.
-`run_newton` takes Levenberg-Marquardt steps that raise the bound, and prune moves (eq. 17)
+`run_newton` fits one problem (``method="newton"``); ``_jfa_em.py`` has plain EM, the slow
+reference. The bound with Q(z, t) and Q(alpha) optimised out (``docs/theory.md``, eq. 12) is a
+smooth function of the coordinates of ``_jfa_model.to_coords`` (each input's ``<w_z>, <w_x>``
+and log-variances, and ``log psi_y``: ``(B, P)`` with ``P = r d + 1``). It is a sum of each
+input's own terms plus a function of the predictor ``k`` and of ``c`` (eq. 14), so its Hessian
+is block-diagonal plus a ``(d + 1) x (d + 1)`` coupling; `newton_step` solves the damped
+Newton system through that structure (eq. 15) in ``O(r^3 d + d^3)``. `run_newton` takes
+Levenberg-Marquardt steps that raise the bound, and prune moves (``_jfa_prune.py``, eq. 17)
 that set an input's ``<w_z>`` (and ``<w_x>``) to the prior's zero, which Newton approaches
-only geometrically (eq. 16 has the rules). Every function takes a batch of ``B`` problems.
+only geometrically (eq. 16 has the rules). The step's functions take a batch of ``B``
+problems; `run_newton` gives them a batch of one.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ from typing import NamedTuple
 
 import torch
 
+from .._util import single_thread
 from . import _jfa_model as jm
-from ._jfa_model import Settings, State, Stats
+from ._jfa_model import Result, Settings, State, Stats
+from ._jfa_prune import prune_trial
 
 _LM_START, _LM_FLOOR, _LM_MAX = 1e-3, 1e-12, 1e12  # damping, relative to |diag H|
 _LM_POLISH = 1e-9  # a convergence with more damping than this is re-checked at the floor
@@ -28,31 +32,6 @@ _ROUNDOFF = 64 * 2.0**-52  # relative round-off of the bound (a sum of O(d) term
 # at most once in _PRUNE_EVERY Newton iterations (docs/theory.md, eq. 16)
 _PRUNE_GAIN = 1e-3
 _PRUNE_EVERY = 3
-
-
-# ------------------------------------------------------------------------------ coordinates
-def to_coords(st: State, cfg: Settings) -> torch.Tensor:
-    """The coordinates ``(B, P)`` of a state ``(B, d)`` (module docstring)."""
-    rows = [st.mz, st.mx] + [torch.log(st.vz), torch.log(st.vx), torch.log(st.psz)]
-    rows += [] if cfg.fixed_x else [torch.log(st.psx)]
-    return torch.cat(rows + [torch.log(st.psy)[:, None]], -1)
-
-
-def from_coords(x: torch.Tensor, psx: torch.Tensor, cfg: Settings) -> State:
-    """The state of coordinates ``x (B, P)``, Q(alpha) at its optimum; ``psx (B, d)`` is used
-    where psi_x is fixed."""
-    d = psx.shape[-1]
-    mz, mx = x[:, :d], x[:, d : 2 * d]
-    vz, vx, psz = (torch.exp(x[:, i * d : (i + 1) * d]) for i in (2, 3, 4))
-    psx = psx if cfg.fixed_x else torch.exp(x[:, 5 * d : 6 * d])
-    rate = jm.optimal_rate(mz, mx, vz, vx, cfg)
-    return State(mz, mx, vz, vx, rate, psz, psx, torch.exp(x[:, -1]))
-
-
-def coords_bound(x: torch.Tensor, S: Stats, psx: torch.Tensor, cfg: Settings) -> torch.Tensor:
-    """The collapsed bound (eq. 12) at coordinates ``x (B, P)``, ``(B,)``."""
-    st = from_coords(x, psx, cfg)
-    return jm.collapsed_bound(S, st.mz, st.mx, st.vz, st.vx, st.psz, st.psx, st.psy, cfg)
 
 
 # ------------------------------------------------------------------ gradient and Hessian
@@ -177,25 +156,10 @@ def input_curvature(own, h_k, h_c, n, dg, cfg: Settings, r: int):
     return grad, hess, jk, jq
 
 
-def dense_hessian(cv: Curvature, xx: torch.Tensor) -> torch.Tensor:
-    """The Hessian of `Curvature` (moments ``xx (B, d, d)``) as a dense ``(B, P, P)`` matrix:
-    the reference the structured solve is tested against."""
-    B, r, d = cv.jk.shape
-    blocks = torch.diag_embed(cv.hb).permute(0, 1, 3, 2, 4).reshape(B, r * d, r * d)
-    H = torch.nn.functional.pad(blocks, (0, 1, 0, 1))
-    H[:, -1, -1] = cv.hpsy
-    Jk = torch.diag_embed(cv.jk).permute(0, 2, 1, 3).reshape(B, d, r * d)
-    Jc = torch.cat([cv.jq.reshape(B, 1, r * d), cv.psy[:, None, None]], -1)
-    J = torch.cat([torch.nn.functional.pad(Jk, (0, 1)), Jc], -2)
-    return H - J.mT @ _coupling(cv, xx, with_diagonal=True) @ J
-
-
-def _coupling(cv: Curvature, xx: torch.Tensor, with_diagonal: bool) -> torch.Tensor:
-    """``W`` of eq. 15: minus the Hessian of ``h(k, c)``, ``(B, d + 1, d + 1)``; without its
-    ``k``-``k`` diagonal (moved into the blocks) unless ``with_diagonal``."""
-    top = xx / cv.c[:, None, None]
-    if not with_diagonal:
-        top = top - torch.diag_embed(cv.dg / cv.c[:, None])
+def _coupling(cv: Curvature, xx: torch.Tensor) -> torch.Tensor:
+    """``W`` of eq. 15: minus the Hessian of ``h(k, c)`` without its ``k``-``k`` diagonal (moved
+    into the blocks), ``(B, d + 1, d + 1)``."""
+    top = xx / cv.c[:, None, None] - torch.diag_embed(cv.dg / cv.c[:, None])
     top = torch.cat([top, -cv.gkc[..., None]], -1)
     return torch.cat([top, torch.cat([-cv.gkc, -cv.gcc[:, None]], -1)[:, None]], -2)
 
@@ -267,7 +231,7 @@ def newton_step(x, cv: Curvature, xx, lam, lb) -> Step:
     row_l = torch.nn.functional.pad(l_c, (0, 1))  # (B, d + 1), row d of L off its diagonal
     b_c = (jq_t * z).sum((-2, -1)) + psy * g[:, -1] / a_psy
     b = torch.cat([(jk_t * z).sum(-1), b_c[:, None]], -1)  # J A^-1 g
-    W = _coupling(cv, xx, with_diagonal=False)
+    W = _coupling(cv, xx)
     WL = W * diag_l[:, None, :] + W[:, :, d:] * row_l[:, None, :]  # W L
 
     def lt(v):  # L^T v for v (B, d + 1, k)
@@ -305,12 +269,95 @@ def damped_step(x, cv: Curvature, xx, lam, nu, lb):
         if not bool(bad.any()):
             break
         lam, nu = raise_(bad, lam, nu)
-    step = newton_step(x, cv, xx, lam, lb)
-    while True:  # the whole matrix, on the problems where it is not definite yet
+    while True:  # then the whole matrix
+        step = newton_step(x, cv, xx, lam, lb)
         bad = ~step.ok & (lam <= _LM_MAX)
         if not bool(bad.any()):
             return step, lam, nu
         lam, nu = raise_(bad, lam, nu)
-        i = bad.nonzero()[:, 0]
-        sub = newton_step(x[i], Curvature(*(t[i] for t in cv)), xx[i], lam[i], lb[i])
-        step = Step(*(t.index_copy(0, i, u) for t, u in zip(step, sub, strict=True)))
+
+
+# ------------------------------------------------------------------------------ the loop
+def run_newton(S: Stats, st: State, cfg: Settings, *, max_iter, tol, coef_tol, bar=None) -> Result:
+    """The Newton optimiser with prune moves from ``st`` (eq. 16), on one thread (its kernels
+    are small: threads would only wait on each other).
+
+    An iteration is one damped Newton trial or one prune trial; the bound after it is recorded
+    (the first record is the bound at ``st``) and never falls. Newton has converged when a kept
+    step changes the bound by at most ``tol * max(|L|, N)`` and no coordinate by more than
+    ``coef_tol``, when its step's first-order gain is below the bound's round-off, or when no
+    damping makes the Newton matrix definite; a convergence with the damping above
+    ``_LM_POLISH`` is re-checked once at the floor. Then a prune trial runs: if it gains,
+    Newton resumes, else the fit stops (``"bound"``). A prune trial also follows a kept step
+    that gained little (``_PRUNE_GAIN``), and Newton goes on if it finds nothing. With ``tol =
+    coef_tol = 0`` a fit that stops is at a fixed point of the iteration, recorded up to
+    ``max_iter``.
+
+    Args:
+        S: one problem's standardised moments (no batch dimension). st: its starting state.
+        cfg: the settings. max_iter, tol, coef_tol: the stopping rule.
+        bar: an optional progress bar (``update(k)``).
+    """
+    S, st = Stats(*(t[None] for t in S)), State(*(t[None] for t in st))  # a batch of one
+    psx, d = st.psx, st.psx.shape[-1]
+    x = jm.to_coords(st, cfg)
+    lb = torch.full(x.shape[-1:], -torch.inf, dtype=x.dtype, device=x.device)
+    lb[4 * d : (5 if cfg.fixed_x else 6) * d] = torch.log(torch.tensor(cfg.noise_floor))
+    lb[-1] = torch.log(torch.tensor(cfg.noise_y_floor))
+    lb = torch.minimum(lb, x)  # the start is feasible
+    L = jm.coords_bound(x, S, psx, cfg)
+    lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
+    hist, since = [L], 0
+    pruning = scheduled = polished = stop = False  # a prune trial next; after a slow step
+    any_tol = tol > 0 or coef_tol > 0
+    with single_thread():
+        while not stop and len(hist) < max_iter:
+            level = torch.maximum(L.abs(), S.n.clamp_min(1.0))
+            if pruning:  # eq. 17: Newton resumes after a prune that gains
+                x_p, L_p, found = prune_trial(x, S, psx, cfg, tol * level)
+                found = bool(found & (L_p > L))
+                if found:
+                    x, L, polished = x_p, L_p, False
+                    lam, nu = torch.full_like(L, _LM_START), torch.full_like(L, 2.0)
+                stop = not found and not scheduled
+                pruning = scheduled = False
+                since = 0
+            else:  # a damped Newton trial
+                cv = derivatives(x, S, psx, cfg)
+                step, lam, nu = damped_step(x, cv, S.xx, lam, nu, lb)
+                ok = bool(step.ok)
+                L_t = jm.coords_bound(step.trial, S, psx, cfg)
+                # a step whose first-order gain the bound cannot resolve is judged by the
+                # gradient: kept unless the bound falls by more than its round-off (NaN fails)
+                roundoff = _ROUNDOFF * level
+                small = ok and bool(step.gain <= roundoff)
+                accept = ok and (bool(L_t > L) or (small and bool(L_t >= L - roundoff)))
+                dL = (L_t - L).clamp_min(0.0) if accept else torch.zeros_like(L)
+                # Nielsen's rule: less damping after a step the quadratic model predicted
+                # well, more (and faster each time) after a rejected one
+                if accept:
+                    rho = dL / step.predicted.clamp_min(1e-300)
+                    down = torch.clamp(1.0 - (2.0 * rho - 1.0) ** 3, min=1.0 / 3.0, max=1.0)
+                    lam, nu = (lam * down).clamp_min(_LM_FLOOR), torch.full_like(nu, 2.0)
+                elif ok and not small:
+                    lam, nu = lam * nu, 2.0 * nu
+                moved = float((step.trial - x).abs().amax())
+                converged = accept and bool(dL <= tol * level) and moved <= coef_tol and any_tol
+                converged = converged or (small and (not accept or moved <= coef_tol))
+                polish = converged and not polished and bool(lam > _LM_POLISH)
+                converged = (converged and not polish) or not ok  # no damping made it definite
+                since += 1
+                slow = accept and not converged and since >= _PRUNE_EVERY
+                slow = slow and bool(dL <= _PRUNE_GAIN * S.n)
+                if accept:
+                    x, L = step.trial, L_t
+                if polish:
+                    lam = torch.full_like(lam, _LM_FLOOR)
+                pruning, scheduled, polished = converged or slow, slow, polished or polish
+            hist.append(L)
+            if bar is not None:
+                bar.update(1)
+    if stop and not any_tol:  # a fixed point: the remaining iterations repeat it
+        hist += [L] * (max_iter - len(hist))
+    state = State(*(t[0] for t in jm.from_coords(x, psx, cfg)))
+    return Result(state, torch.cat(hist), len(hist), int(stop and any_tol))

@@ -1,4 +1,7 @@
-"""The prune move of Bayesian JFA's optimiser (``docs/theory.md``, eqs. 17-18).
+"""The prune move of Bayesian JFA's Newton optimiser (``docs/theory.md``, eqs. 17-18).
+
+`prune_trial` is the move that `_jfa_newton.run_newton` tries at each convergence (and after
+slow steps); the rest of this module is its parts, tested one by one.
 
 An input that does not help explain ``y`` heads for the prior's zero (``<w_z> = 0``, its
 relevance precision unbounded), which Newton on the log-variances approaches only
@@ -15,8 +18,7 @@ from typing import NamedTuple
 import torch
 
 from . import _jfa_model as jm
-from ._jfa_model import Settings, State, Stats
-from ._jfa_newton import coords_bound, from_coords, to_coords
+from ._jfa_model import Settings, State, Stats, coords_bound, from_coords, to_coords
 
 
 def pruned_variances(mx, vz, vx, psz, psx, n, cfg: Settings, rounds: int = 2):
@@ -96,22 +98,18 @@ def candidates(x: torch.Tensor, S: Stats, psx: torch.Tensor, cfg: Settings) -> C
 
 def greedy_pick(cand: Candidates, S: Stats, thr: torch.Tensor) -> torch.Tensor:
     """The inputs that pruning one at a time prunes, the best first, each while it gains more
-    than ``thr (B,)`` given those before it: ``(B, d)`` bool. A prune keeps ``c``, so pruning
-    input j changes input m's gain by ``-k_m (X^T X)_mj k_j / c`` alone (eq. 17)."""
-    gain, k = cand.gain, cand.k
+    than ``thr (1,)`` given those before it: ``(1, d)`` bool, for one problem (``B = 1``). A
+    prune keeps ``c``, so pruning input j changes input m's gain by ``-k_m (X^T X)_mj k_j / c``
+    alone (eq. 17)."""
+    gain, k, xx = cand.gain[0], cand.k[0], S.xx[0]
+    rate = k / cand.c[0]
     pick = torch.zeros_like(gain, dtype=torch.bool)
-    rate = k / cand.c[:, None]
-    for _ in range(gain.shape[-1]):
-        j = gain.argmax(-1, keepdim=True)
-        best = gain.gather(-1, j)
-        ok = best > thr[:, None]
-        if not bool(ok.any()):
-            break
-        col = torch.gather(S.xx, -1, j[..., None].expand(*S.xx.shape[:-1], 1))[..., 0]
-        gain = gain - rate * col * torch.where(ok, k.gather(-1, j), 0.0)
-        gain = gain.scatter(-1, j, torch.where(ok, -torch.inf, best))
-        pick = pick.scatter(-1, j, ok | pick.gather(-1, j))
-    return pick
+    while bool(gain.max() > thr[0]):
+        j = int(gain.argmax())
+        gain = gain - rate * xx[:, j] * k[j]
+        gain[j] = -torch.inf
+        pick[j] = True
+    return pick[None]
 
 
 def with_prunes(cand: Candidates, pick: torch.Tensor, cfg: Settings) -> torch.Tensor:
