@@ -191,61 +191,7 @@ def _bench_one(n, d, available, n_small, n_large, iter_probe, repeat, seed) -> d
         f"{'met' if r1 <= 0.3 else 'NOT met'}); / X^T X pass = {r2:.2f} (target <= 3: "
         f"{'met' if r2 <= 3.0 else 'NOT met'})"
     )
-    row["batch"] = batched_against_single(d, seed=seed)
     return row
-
-
-def batched_against_single(
-    d: int, *, n_problems: int = 64, n: int = 5000, seed: int = 0, pairs: int = 3
-):
-    """Seconds of ``n_problems`` Bayesian JFA fits of width ``d`` in one
-    ``BayesianJFA().fit_batch`` call against one ``fit_moments`` call per problem (same
-    moments), their ratio, and the largest difference of the coefficients between the two.
-    The two are timed alternately ``pairs`` times and the median ratio is the one judged (on a
-    shared machine one pair's ratio moves by 10-20 %)."""
-    problems = [
-        Moments.from_chunks(make_data(n, d, seed=seed + 100 + i)) for i in range(n_problems)
-    ]
-    est = estimators.BayesianJFA(fit_intercept=False)
-    times = []
-    for _ in range(pairs):
-        t_batch, fits = _time(lambda: est.fit_batch(problems), 1)
-        t_single, singles = _time(
-            lambda: [estimators.BayesianJFA(fit_intercept=False).fit_moments(m) for m in problems],
-            1,
-        )
-        times.append((t_batch / t_single, t_batch, t_single))
-    ratio, t_batch, t_single = sorted(times)[len(times) // 2]
-    conv = sum(f.converged_ for f in fits)
-    iters = [f.n_iter_ for f in fits]
-    gaps = [
-        float((f.coef_ - s.coef_).abs().max() / s.coef_.abs().max())
-        for f, s in zip(fits, singles, strict=True)
-    ]
-    apart = [  # batch minus single bound where the coefficients differ
-        float(f.lower_bound_[-1] - s.lower_bound_[-1])
-        for f, s, g in zip(fits, singles, gaps, strict=True)
-        if g > 1e-10
-    ]
-    print(
-        f"  {n_problems} problems of d = {d}, {pairs} alternating pairs, ratios "
-        f"{', '.join(f'{t[0]:.3f}' for t in times)}; the median pair: one fit_batch call "
-        f"{t_batch:.2f} s, {n_problems} fit_moments calls {t_single:.2f} s, ratio {ratio:.3f} "
-        f"(target <= 1/8 = 0.125: {'met' if ratio <= 0.125 else 'NOT met'}); "
-        f"{conv} of {n_problems} converged, iterations {min(iters)} to {max(iters)}; "
-        f"iterations of the single fits: mean "
-        f"{sum(s.n_iter_ for s in singles) / n_problems:.0f}, worst "
-        f"{max(s.n_iter_ for s in singles)}; batch vs single: "
-        f"{n_problems - len(apart)} of {n_problems} agree to 1e-10 relative in coef_"
-        + (
-            f", the others end at other optima (bound batch - single: "
-            f"{', '.join(f'{a:+.2f}' for a in sorted(apart))} nats; largest coef_ "
-            f"difference {max(gaps):.1e} of the largest coefficient)"
-            if apart
-            else ""
-        )
-    )
-    return {"batch": t_batch, "single": t_single, "ratio": ratio, "ratios": [t[0] for t in times]}
 
 
 def parser() -> argparse.ArgumentParser:
