@@ -237,3 +237,38 @@ def test_a_stored_theta_of_the_wrong_shape_is_refused(head):
     del data["theta"]
     with pytest.raises(ValueError, match=r"\['theta'\] missing"):
         identified_from_dict(data)
+
+
+def test_the_cutoff_the_model_was_identified_at_is_read_back(head, tmp_path):
+    """``cutoff_hz`` is the stored extra; a file without one (or with text there) gives the
+    library's default, which is what `evaluate` and the payload prepare logs at."""
+    from torchjfa.data import DEFAULT_CUTOFF_HZ
+
+    theta = _perturbed_theta(head)
+    save_identified(tmp_path / "a.npz", head, theta, cutoff_hz=7.5)
+    save_identified(tmp_path / "b.npz", head, theta)
+    save_identified(tmp_path / "c.npz", head, theta, cutoff_hz="auto")
+    assert read_identified(tmp_path / "a.npz").cutoff_hz == 7.5
+    assert read_identified(tmp_path / "b.npz").cutoff_hz == DEFAULT_CUTOFF_HZ
+    assert read_identified(tmp_path / "c.npz").cutoff_hz == DEFAULT_CUTOFF_HZ
+    assert DEFAULT_CUTOFF_HZ != 7.5
+
+
+def test_the_module_imports_nothing_above_it():
+    """io sits below identification and is imported by the package: it imports neither, and
+    the version it writes is the installed distribution's."""
+    import ast
+    import importlib.metadata
+    from pathlib import Path
+
+    import torchjfa.io
+
+    tree = ast.parse(Path(torchjfa.io.__file__).read_text())
+    imported = [
+        (node.level, node.module or "")
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ImportFrom)
+    ]
+    assert (1, "") not in imported  # no `from . import ...`: the package itself
+    assert not [m for level, m in imported if m.split(".")[0] in ("identification", "torchjfa")]
+    assert torchjfa.io._library_version() == importlib.metadata.version("torchjfa")

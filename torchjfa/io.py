@@ -30,6 +30,10 @@ key                    shape, dtype        meaning
 ``extra_<name>``       any                 user extras, e.g. noise estimates (numbers/strings)
 =====================  ==================  =====================================================
 
+One extra is read back with a meaning: ``extra_cutoff_hz``, the cut-off in Hz the logs were
+filtered at when the model was identified (`torchjfa identify` stores it), which
+`IdentifiedModel.cutoff_hz` gives so that new logs are prepared as the model's were.
+
 The same content as a dictionary of tensors and Python values (`identified_to_dict`,
 `identified_from_dict`) is what `torchjfa.learning` stores inside its Lightning checkpoints, so
 that those load with ``torch.load(..., weights_only=True)``.
@@ -39,6 +43,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +51,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .data import DEFAULT_CUTOFF_HZ
 from .dynamics import InverseDynamics, RigidBodyModel
 
 __all__ = [
@@ -85,6 +91,7 @@ class IdentifiedModel:
         extras: the user's extras, name -> ``torch.Tensor`` (numbers) or ``str``.
         library_version: the torchjfa version that wrote the file.
         source_path: the description's path when it was written (None if none).
+        cutoff_hz: (read-only) the cut-off the model's logs were filtered at, Hz.
     """
 
     model: RigidBodyModel
@@ -92,6 +99,20 @@ class IdentifiedModel:
     extras: dict[str, object] = field(default_factory=dict)
     library_version: str = ""
     source_path: str | None = None
+
+    @property
+    def cutoff_hz(self) -> float:
+        """The cut-off the model's logs were filtered at, Hz: the ``cutoff_hz`` extra
+        (`torchjfa identify` stores it), else `torchjfa.data.DEFAULT_CUTOFF_HZ` (a file
+        without it, or one whose value is not a positive number). New logs judged against the
+        model, or a payload's logs, are prepared at it so that both sides see the same filter.
+        """
+        stored = self.extras.get("cutoff_hz")
+        try:
+            value = float(stored) if stored is not None else math.nan
+        except (TypeError, ValueError, RuntimeError):  # text, or several numbers
+            value = math.nan
+        return value if 0 < value < math.inf else DEFAULT_CUTOFF_HZ
 
     def inverse_dynamics(self, *, trainable: bool | str = False) -> InverseDynamics:
         """A ready `InverseDynamics` of ``model`` and ``theta``."""

@@ -60,3 +60,28 @@ def test_bayesian_jfa_posterior_spread_shrinks_like_one_over_root_n():
         stds.append(est.coef_std_)
     ratio = (stds[0] / stds[1]).numpy()
     np.testing.assert_allclose(ratio, np.sqrt(10.0), rtol=0.3)
+
+
+def test_the_jackknife_of_block_means_is_their_standard_error():
+    """For the mean, leaving block k out gives ``(S - b_k) / (K - 1)``, so the jackknife
+    standard deviation is exactly the blocks' standard deviation over sqrt(K), whatever the
+    trailing shape; arrays and tensors alike."""
+    from torchjfa.estimators._jackknife import jackknife_std
+
+    rng = np.random.default_rng(2)
+    b = rng.standard_normal((7, 3, 2))  # K = 7 block means of a (3, 2) estimate
+    left_out = (b.sum(0) - b) / 6
+    want = b.std(0, ddof=1) / np.sqrt(7)
+    np.testing.assert_allclose(jackknife_std(left_out).numpy(), want, rtol=1e-12)
+    assert torch.equal(jackknife_std(left_out), jackknife_std(torch.from_numpy(left_out)))
+    with pytest.raises(ValueError, match="at least 2"):
+        jackknife_std(left_out[:1])
+
+
+def test_the_estimators_jackknife_uses_the_same_formula():
+    from torchjfa.estimators._jackknife import jackknife_std
+
+    X, y = _data(n=800)
+    folds = kfold_moments(torch.from_numpy(X), torch.from_numpy(y), 5)
+    coefs, std = jackknife(OLS(fit_intercept=False), folds)
+    assert torch.equal(std, jackknife_std(coefs))

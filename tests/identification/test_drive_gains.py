@@ -62,6 +62,17 @@ def test_the_scales_of_noiseless_logs_are_recovered(arm):
     assert bool(found.determined.all())
     assert float(found.payload[0]) == MASS
     assert float((found.std / found.gains).max()) < 2e-3
+    # unweighted (options.weighting), the noiseless logs give the same scales
+    plain = identify_drive_gains(
+        (model, theta * 1.3),
+        loaded,
+        free,
+        link="tool",
+        mass=MASS,
+        options=Options(cutoff=20.0, weighting="none", jackknife=4),
+    )
+    assert plain.gains.tolist() == pytest.approx(list(SCALES), rel=2e-3)
+    assert plain.std.shape == (2,) and bool((plain.std > 0).all())
 
 
 def test_noisy_logs_give_the_scales_within_their_spreads_where_least_squares_shrinks_them(arm):
@@ -106,6 +117,9 @@ def test_bad_input_is_refused(arm):
         identify_drive_gains((model, theta), log, log, link="tool", mass=0.0)
     with pytest.raises(IdentificationError, match="blocks"):
         identify_drive_gains((model, theta), log, log, link="tool", mass=1.0, blocks=2)
+    with pytest.raises(IdentificationError, match="options.jackknife"):
+        options = Options(jackknife=0)  # the spreads' blocks come from the options
+        identify_drive_gains((model, theta), log, log, link="tool", mass=1.0, options=options)
     with pytest.raises(IdentificationError, match="no frame"):
         identify_drive_gains((model, theta), log, log, link="nosuch", mass=1.0)
 

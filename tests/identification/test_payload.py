@@ -210,29 +210,93 @@ def test_the_spreads_match_the_scatter_over_noise_draws():
     assert "not determined by the logs" in p.markdown()
 
 
-def test_a_noisy_joint_does_not_drown_a_quiet_one(monkeypatch):
+def test_a_noisy_joint_does_not_drown_a_quiet_one():
     """Joint 1's torque 20x noisier than joint 2's: weighting each joint's rows by its residual
-    level (the default) finds the payload's mass and centre of mass closer to the truth, over
-    noise draws, than treating every row alike."""
+    level (``weighting="residual"``, the default) finds the payload's mass and centre of mass
+    closer to the truth, over noise draws, than treating every row alike (``"none"``)."""
     from dataclasses import replace
-
-    import torchjfa.identification._payload as module
 
     model = RigidBodyModel.from_urdf(ARM, friction=())
     theta = model.nominal_theta
     clean = _log(model, theta, seconds=30.0)
     level = torch.tensor([2.0, 0.1], dtype=torch.float64)
-    errors = {True: [], False: []}
+    errors = {"residual": [], "none": []}
     for seed in range(8):
         g = torch.Generator().manual_seed(seed)
         noise = level * torch.randn(clean.tau.shape, generator=g, dtype=torch.float64)
         noisy = replace(clean, tau=clean.tau + noise)
-        for weighted in (True, False):
-            monkeypatch.setattr(module, "WEIGHTED", weighted)
-            p = identify_payload((model, theta), noisy, link="tool", options=Options(cutoff=5.0))
+        for weighting in errors:
+            options = Options(cutoff=5.0, weighting=weighting)
+            p = identify_payload((model, theta), noisy, link="tool", options=options)
+            assert ("weighted by its residual level" in p.how) == (weighting == "residual")
             com = torch.tensor([COM[0], COM[2]], dtype=torch.float64)
-            errors[weighted].append(
+            errors[weighting].append(
                 ((p.theta_hat[0] - MASS) / MASS) ** 2
                 + ((p.theta_hat[[1, 3]] / p.theta_hat[0] - com) / 0.01).pow(2).sum()
             )
-    assert float(torch.stack(errors[True]).mean()) < 0.5 * float(torch.stack(errors[False]).mean())
+    # the weights are 1 / sigma_j^2 with sigma_1 / sigma_2 = 20, well inside the floor
+    # (JOINT_WEIGHT_FLOOR = 1e-3 of the variance, a ratio of about 32 in sigma)
+    residual = float(torch.stack(errors["residual"]).mean())
+    assert residual < 0.5 * float(torch.stack(errors["none"]).mean())
+
+
+def test_the_options_estimator_fits_the_payload_rows_formed_by_hand():
+    """Two paths, one answer: the payload's estimate from the streamed moments, mapped to its
+    columns (``Z = Y_B A``, right-hand side ``tau - Y theta``), equals the options' estimator
+    (ridge with a penalty that moves the answer) fitted on those rows formed by hand, with the
+    joints unweighted and weighted by their inverse residual variances (mean 1)."""
+    from dataclasses import replace
+
+    from torchjfa.estimators import OLS, Ridge
+    from torchjfa.identification._prepare import read_prepared, split_held_out
+
+    model = RigidBodyModel.from_urdf(ARM, friction=())
+    theta = model.nominal_theta
+    clean = _log(model, theta)
+    g = torch.Generator().manual_seed(3)
+    level = torch.tensor([1.0, 0.1], dtype=torch.float64)
+    noisy = replace(
+        clean,
+        tau=clean.tau + level * torch.randn(clean.tau.shape, generator=g, dtype=torch.float64),
+    )
+    _, data = read_prepared(noisy, model, Options(), 20.0)
+    train, _ = split_held_out(data, Options().validation, 20.0)
+    joint, A = payload_regressor(model, "tool")
+    Y = model.regressor(train.q, train.qd, train.qdd)  # (n, 2, p)
+    Z = Y[..., model.layout.split(torch.arange(model.n_params))[0][joint]] @ A  # (n, 2, 10)
+    y = train.tau - Y @ theta  # (n, 2)
+    ols = OLS(fit_intercept=False).fit(Z.reshape(-1, 10), y.reshape(-1)).coef_
+    var = (y - Z @ ols).pow(2).mean(0)  # each joint's residual variance, well above the floor
+    alpha = 0.01 * float(torch.einsum("nji,nji->", Z, Z)) / 10  # 1 % of the mean eigenvalue
+    for weighting, w in (("none", torch.ones(2)), ("residual", (1 / var) / (1 / var).mean())):
+        options = Options(
+            cutoff=20.0,
+            estimator="ridge",
+            estimator_options={"alpha": alpha},
+            weighting=weighting,
+            jackknife=0,
+        )
+        found = identify_payload((model, theta), noisy, link="tool", options=options)
+        root = w.to(torch.float64).sqrt()
+        X, target = (Z * root[:, None]).reshape(-1, 10), (y * root).reshape(-1)
+        want = Ridge(alpha=alpha, fit_intercept=False).fit(X, target).coef_
+        # the same normal equations summed in another order: rounding only
+        assert torch.allclose(
+            found.theta_hat, want, rtol=1e-8, atol=1e-10 * float(want.abs().max())
+        )
+        unpenalised = OLS(fit_intercept=False).fit(X, target).coef_
+        assert abs(float(want[0] - unpenalised[0])) > 1e-4 * MASS  # the penalty shows
+        assert "estimator ridge" in found.how
+
+
+def test_without_the_jackknife_there_are_no_spreads_and_the_motion_decides():
+    model = RigidBodyModel.from_urdf(ARM, friction=())
+    theta = model.nominal_theta
+    found = identify_payload(
+        (model, theta), _log(model, theta), link="tool", options=Options(cutoff=20.0, jackknife=0)
+    )
+    assert bool(found.std.isnan().all())
+    assert found.mass == pytest.approx(MASS, rel=1e-3)
+    seen = {n for n, ok in zip(PARAMETERS, found.determined.tolist(), strict=True) if ok}
+    assert seen == {"m", "hx", "hz", "Iyy"}  # what a planar arm turning about y excites
+    assert "no jackknife spread" in found.markdown()

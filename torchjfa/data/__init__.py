@@ -4,7 +4,8 @@
 truth). `read_log` reads CSV, NPZ and Parquet logs and ROS bags into one (torques, or motor
 currents with drive gains; time in s, ms, us or ns); `prepare` resamples, filters,
 differentiates, trims and decimates it; `choose_cutoff` picks its filter's cut-off from the
-data; `differentiate` is the filter and derivatives alone;
+data; `differentiate` is the filter and derivatives alone, `edge_seconds` its reach at a log's
+ends;
 `motion_span` finds the standing still at a log's ends;
 `check_log` finds logs that cannot identify anything (gaps, no motion, degrees, velocities in
 deg/s, scrambled columns); `coverage` says where another log's motion goes beyond the
@@ -27,8 +28,10 @@ from ._cutoff import armature_helps as armature_helps
 from ._cutoff import choose_cutoff as choose_cutoff
 from ._cutoff import cutoff_grid as cutoff_grid
 from ._differentiate import DEFAULT_CUTOFF_HZ as DEFAULT_CUTOFF_HZ
+from ._differentiate import EDGE_PERIODS as EDGE_PERIODS
 from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate
+from ._differentiate import edge_seconds as edge_seconds
 from ._differentiate import savgol_window as savgol_window
 from ._log import JointLog as JointLog
 from ._log import read_log as read_log

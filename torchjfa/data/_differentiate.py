@@ -31,10 +31,34 @@ from scipy import signal
 
 from .._validation import as_tensor, check_finite
 
-__all__ = ["Derivatives", "differentiate", "savgol_window", "DEFAULT_CUTOFF_HZ"]
+__all__ = [
+    "Derivatives",
+    "differentiate",
+    "savgol_window",
+    "DEFAULT_CUTOFF_HZ",
+    "EDGE_PERIODS",
+    "edge_seconds",
+]
 
 DEFAULT_CUTOFF_HZ = 20.0
+#: the filter's reach in periods of its cut-off (`edge_seconds`)
+EDGE_PERIODS = 4.0
 _METHODS = ("butterworth", "savgol")
+
+
+def edge_seconds(cutoff_hz: float) -> float:
+    """The zero-phase filter's reach, s: ``EDGE_PERIODS / cutoff_hz``.
+
+    Within it of a log's end the filtered signal and its derivatives still carry the filter's
+    start-up: the default order-4 Butterworth's impulse response has decayed to about 1e-4 of
+    its peak four periods of its cut-off after the impulse. `prepare` drops that much at each end,
+    and a log cut in two (training and held-out parts) leaves that gap between them, so that
+    no filtered sample of one part saw the other.
+
+    Args:
+        cutoff_hz: the filter's cut-off, Hz (> 0).
+    """
+    return EDGE_PERIODS / cutoff_hz
 
 
 class Derivatives(NamedTuple):

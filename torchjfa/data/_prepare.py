@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from scipy import interpolate
 
-from ._differentiate import DEFAULT_CUTOFF_HZ, differentiate
+from ._differentiate import DEFAULT_CUTOFF_HZ, differentiate, edge_seconds
 from ._log import JointLog, LogError
 
 __all__ = ["prepare", "resample", "detect_period", "transient_periods", "is_uniform"]
@@ -217,7 +217,7 @@ def prepare(
             leading periods that differ from the settled motion (`transient_periods`; needs a
             period).
         edge_s: seconds dropped at both ends for the filter's start and end (default
-            ``4 / cutoff_hz``).
+            `torchjfa.data.edge_seconds` of ``cutoff_hz``).
         decimate: keep every ``decimate``-th sample after filtering; the cut-off must lie
             below the new Nyquist frequency.
 
@@ -271,7 +271,7 @@ def prepare(
         raise LogError(f"{log.source}: {exc}") from None
     info["velocity"] = "measured" if use_qd else "differentiated"
     out = replace(log, q=q, qd=qd, qdd=qdd, tau=tau, period_samples=None)
-    edge = int(math.ceil((4.0 / cutoff_hz if edge_s is None else float(edge_s)) * rate))
+    edge = int(math.ceil((edge_seconds(cutoff_hz) if edge_s is None else float(edge_s)) * rate))
     if skip_start_s == "auto":
         if P is None:
             raise LogError(

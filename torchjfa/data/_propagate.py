@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from .._validation import check_joint_weights
-from ._differentiate import DEFAULT_CUTOFF_HZ
+from ._differentiate import DEFAULT_CUTOFF_HZ, edge_seconds
 from ._joints import permutation
 from ._log import JointLog
 from ._prepare import prepare
@@ -239,7 +239,7 @@ def _fixed(preparation: dict, info: dict) -> dict:
         cutoff = fixed.get("cutoff_hz")
         edge_s = fixed.get("edge_s")
         if edge_s is None:
-            edge_s = 4.0 / (DEFAULT_CUTOFF_HZ if cutoff is None else cutoff)
+            edge_s = edge_seconds(DEFAULT_CUTOFF_HZ if cutoff is None else cutoff)
         edge = math.ceil(edge_s * rate)
         skip = round(info["dropped_start_s"] * rate) - edge
         # prepare drops ceil(skip_s * rate) samples: half a sample short of `skip` gives it

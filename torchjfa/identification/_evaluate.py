@@ -15,17 +15,16 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
 
-from ..data import DEFAULT_CUTOFF_HZ, JointLog
+from ..data import JointLog
 from ..dynamics import RigidBodyModel
 from ..report import TorqueFit, predicted_torques, torque_errors
 from ._options import IdentificationError, Options
-from ._prepare import concatenate, read_prepared, several
+from ._prepare import concatenate, identified_model, read_prepared, several
 from ._validate import measured_torque
 
 __all__ = ["Evaluation", "evaluate"]
@@ -160,8 +159,9 @@ def evaluate(
         LogError: on a log that cannot be read or prepared.
     """
     options = Options() if options is None else options
-    model, theta, own = _identified(identified)
-    cutoff = float(cutoff_hz if cutoff_hz is not None else own)
+    ident = identified_model(identified)
+    model, theta = ident.model, ident.theta
+    cutoff = float(cutoff_hz if cutoff_hz is not None else ident.cutoff_hz)
     if not 0 < cutoff < float("inf"):
         raise IdentificationError(f"the cut-off must be a positive number of Hz, got {cutoff}")
     params = {"identified": theta}
@@ -208,20 +208,7 @@ def _fits(model, params, log: JointLog) -> dict[str, TorqueFit]:
 
 
 def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float]:
-    """``(model, theta, cut-off)`` of a model file or a pair: the cut-off the model file
-    stores, else `DEFAULT_CUTOFF_HZ` (a pair stores none), Hz."""
-    if isinstance(identified, Sequence) and not isinstance(identified, str):
-        model, theta = identified
-        return model, torch.as_tensor(theta, dtype=torch.float64), DEFAULT_CUTOFF_HZ
-    from ..io import read_identified
-
-    path = os.fspath(identified)
-    if not os.path.isfile(path):
-        raise IdentificationError(f"no model file {path!r}")
-    try:
-        ident = read_identified(path)
-    except ValueError as exc:  # not a model file, or a damaged one: the message says which
-        raise IdentificationError(f"{path}: {exc}") from None
-    stored = ident.extras.get("cutoff_hz")
-    cutoff = float(stored) if stored else DEFAULT_CUTOFF_HZ
-    return ident.model, ident.theta.to(torch.float64), cutoff
+    """``(model, theta, cut-off in Hz)`` of a model file or a pair (`identified_model`), as
+    ``torchjfa refine`` reads it; elsewhere use `torchjfa.io.read_identified`."""
+    ident = identified_model(identified)
+    return ident.model, ident.theta, ident.cutoff_hz

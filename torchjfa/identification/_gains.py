@@ -29,9 +29,20 @@ own row's parameters trade off).
 Along a direction the logs leave free (a joint's gain with the parameters only its own row
 sees) the error is flat, and the tie-break keeps the identified robot's values there.
 
-Spreads come from a delete-one-block jackknife over contiguous blocks of every log (filtered
+Spreads come from a delete-one-block jackknife over contiguous blocks of the logs (filtered
 rows are correlated, so least-squares formulas on rows understate them); a gain whose relative
 spread exceeds `DETERMINED_SPREAD` is reported as not determined by the logs.
+
+The flow's shared stages serve where the fit allows: the normal matrices come from
+`stream_moments` (each joint's `Moments` of the robot's regressor and the logged signal per
+contiguous block, of which the rows ``(-Y_j, -Z_j, u_j e_j)`` are a linear map:
+`_normal_matrices`), the joint weights from `inverse_variance_weights` (``options.weighting``:
+``"residual"``, with the floor `JOINT_WEIGHT_FLOOR` of `identify`'s weights, or ``"none"``),
+the spreads from the one jackknife formula (`jackknife_std`, beside
+`torchjfa.estimators.jackknife`) over ``options.jackknife`` blocks. ``options.estimator`` does
+not apply: the fit is a damped Gauss-Newton of semidefinite programs on the current error,
+bilinear in the parameters and the gains, not a linear regression that a
+`torchjfa.estimators` estimator could fit.
 """
 
 from __future__ import annotations
@@ -43,6 +54,7 @@ import numpy as np
 import torch
 
 from .._util import single_thread
+from ..estimators._jackknife import jackknife_std
 from ..physical._convex import (
     MARGIN,
     _body_lmis,
@@ -52,10 +64,10 @@ from ..physical._convex import (
     psd_factor,
     solve_quietly,
 )
-from ._evaluate import _identified
 from ._options import IdentificationError, IdentificationWarning, Options
 from ._payload import ONE_BODY, payload_regressor
-from ._prepare import read_prepared, several
+from ._prepare import identified_model, read_prepared, several
+from ._stream import inverse_variance_weights, stream_moments
 
 __all__ = ["DETERMINED_SPREAD", "DriveGains", "identify_drive_gains"]
 
@@ -131,24 +143,28 @@ class DriveGains:
         return "\n".join(lines)
 
 
-def _blocks(model, log, Z_of, blocks: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(G (blocks, n_dof, P, P), n (blocks,))``: per contiguous block of the log and per
-    joint, the normal matrix of the rows ``(-Y_j, -Z_j, u_j e_j)`` (``Z_of`` None for an
-    unloaded log), and the block's samples."""
+def _normal_matrices(model, logs, select, blocks: int, options) -> tuple[np.ndarray, np.ndarray]:
+    """``(G (blocks, n_dof, P, P), n (blocks,))``: per contiguous block of the logs and per
+    joint, the normal matrix of the rows ``(-Y_j, -Y_j select, u_j e_j)`` (``select`` ``(p,
+    10)`` the payload's map, zero for unloaded logs), from each joint's `Moments` of ``(Y_j,
+    u_j)`` (`stream_moments`), and the block's samples."""
     d, p = model.n_dof, model.n_params
-    Y = model.regressor(log.q, log.qd, log.qdd)  # (n, d, p)
-    n = Y.shape[0]
+    m = p + 10
+    n = sum(log.n_samples for log in logs)
     if n < 10 * blocks:
-        raise IdentificationError(f"a log of {n} samples is too short for {blocks} blocks")
-    Z = Z_of(Y) if Z_of is not None else torch.zeros(n, d, 10, dtype=Y.dtype)
-    U = torch.diag_embed(log.tau)  # (n, d, d): u_j e_j in joint j's row
-    rows = torch.cat([-Y, -Z, U], -1)  # (n, d, P)
-    which = torch.arange(n) * blocks // n
-    out = torch.zeros(blocks, d, p + 10 + d, p + 10 + d, dtype=torch.float64)
-    for b in range(blocks):
-        R = rows[which == b].transpose(0, 1)  # (d, n_b, P)
-        out[b] = R.transpose(1, 2) @ R
-    return out, torch.bincount(which, minlength=blocks).to(torch.float64)
+        raise IdentificationError(f"logs of {n} samples are too short for {blocks} blocks")
+    rows = stream_moments(model, logs, n_folds=blocks, per_joint=True, **options.compute.stream())
+    T = -torch.cat([torch.eye(p, dtype=torch.float64), select], 1)  # (p, m): -(Y_j, Z_j)
+    G = np.zeros((blocks, d, m + d, m + d))
+    counts = np.zeros(blocks)
+    for b, parts in enumerate(rows):
+        for k, mk in enumerate(parts):
+            mk = mk.to("cpu")
+            G[b, k, :m, :m] = (T.T @ mk.xtx @ T).numpy()
+            G[b, k, :m, m + k] = G[b, k, m + k, :m] = (T.T @ mk.xty).numpy()
+            G[b, k, m + k, m + k] = float(mk.yty)
+        counts[b] = float(parts[0].n)
+    return G, counts
 
 
 class _Fit:
@@ -156,8 +172,9 @@ class _Fit:
     Gauss-Newton in ``(a, g)``, ``a = (theta, pi)`` and ``g = 1 / s``, each step a semidefinite
     program (the matrix inequalities on ``a``) with Levenberg-Marquardt damping on ``g``."""
 
-    def __init__(self, cp, model, mass: float, scales: np.ndarray, ref: np.ndarray) -> None:
+    def __init__(self, cp, model, mass, scales: np.ndarray, ref: np.ndarray, weighted=True):
         self.cp, self.model, self.mass, self.scales, self.ref = cp, model, mass, scales, ref
+        self.weighted = weighted
 
     def step(self, G, weights, a0, g0, damping):
         """The damped Gauss-Newton step from ``(a0, g0)``: ``(a, g)``."""
@@ -216,7 +233,9 @@ class _Fit:
         rounds = 0
         while rounds < _MAX_ROUNDS:
             rounds += 1
-            weights = 1.0 / np.maximum(sigma2, 1e-300)
+            weights = np.ones_like(sigma2)
+            if self.weighted:  # each joint by its inverse variance (see the module)
+                weights = inverse_variance_weights(sigma2).numpy()
             before = float(weights @ _errors(G, a, g))
             while True:
                 a_new, g_new = self.step(G, weights, a, g, damping)
@@ -260,7 +279,7 @@ def identify_drive_gains(
     link: str,
     mass: float,
     options: Options | None = None,
-    blocks: int = 10,
+    blocks: int | None = None,
 ) -> DriveGains:
     """Per-joint drive gains from loaded and unloaded runs with a payload of known mass (see
     the module).
@@ -274,8 +293,11 @@ def identify_drive_gains(
         mass: the payload's mass, kg (> 0).
         options: `Options` for reading: currents need nominal ``drive_gains`` (e.g. 1 per
             joint, or the datasheet's), which the result scales; the filter and velocity
-            options as `identify` has them.
-        blocks: contiguous blocks per log for the jackknife spreads (at least 3).
+            options as `identify` has them; ``weighting`` (``"residual"``: each joint's current
+            error weighted by its inverse variance, re-estimated every step; ``"none"``),
+            ``jackknife`` (the blocks of the spreads) and ``compute``.
+        blocks: contiguous blocks of the logs for the jackknife spreads (at least 3; each is
+            one more fit), or None: ``options.jackknife``.
 
     Returns:
         `DriveGains`; ``options.replace(drive_gains=result.gains.tolist())`` reads logs with
@@ -287,37 +309,43 @@ def identify_drive_gains(
     """
     if not mass > 0:
         raise IdentificationError(f"the payload's mass must be positive (kg), got {mass}")
-    if blocks < 3:
-        raise IdentificationError(f"blocks must be at least 3 for the spreads, got {blocks}")
     options = Options() if options is None else options
-    model, theta0, cutoff = _identified(identified)
+    blocks = int(options.jackknife) if blocks is None else blocks
+    if blocks < 3:
+        raise IdentificationError(
+            f"the spreads need at least 3 jackknife blocks (blocks, or options.jackknife), got "
+            f"{blocks}"
+        )
+    ident = identified_model(identified)
+    model, theta0, cutoff = ident.model, ident.theta, ident.cutoff_hz
     j, A = payload_regressor(model, link)
-    cols = model.layout.split(torch.arange(model.n_params))[0][j]
+    select = torch.zeros(model.n_params, 10, dtype=torch.float64)  # (p, 10): Z = Y select
+    select[model.layout.split(torch.arange(model.n_params))[0][j]] = A
     p, d = model.n_params, model.n_dof
-    G, counts, nominal = 0.0, 0.0, None
+    prepared, nominal = {True: [], False: []}, None
     sources = [(s, True) for s in several(loaded)] + [(s, False) for s in several(unloaded)]
     for source, carries in sources:
         raw, log = read_prepared(source, model, options, cutoff)
-        log = log.reorder(model.joint_names)
+        prepared[carries].append(log.reorder(model.joint_names))
         nominal = _nominal(raw, model) if nominal is None else nominal
-        Gb, nb = _blocks(model, log, (lambda Y: Y[..., cols] @ A) if carries else None, blocks)
-        G, counts = G + Gb, counts + nb
-    G, counts = G.numpy(), counts.numpy()  # (blocks, d, P, P), (blocks,)
+    G, counts = _normal_matrices(model, prepared[True], select, blocks, options)
+    Gu, nu = _normal_matrices(model, prepared[False], 0 * select, blocks, options)
+    G, counts = G + Gu, counts + nu  # (blocks, d, P, P), (blocks,)
     scales = np.concatenate([
         _variable_scales(model.layout, theta0, None),
         [mass, *(mass * _PAYLOAD_LENGTH,) * 3, *(mass * _PAYLOAD_LENGTH**2,) * 6],
     ])  # fmt: skip
     ref = np.concatenate([theta0.numpy(), np.zeros(10)])
-    fit = _Fit(_cvxpy(), model, mass, scales, ref)
+    fit = _Fit(_cvxpy(), model, mass, scales, ref, options.weighting == "residual")
     total, n = G.sum(0), float(counts.sum())
     a, s, sigma2, rounds = fit(total, n, ref, np.ones(d))
     omitted = np.stack([
         fit(total - G[b], n - float(counts[b]), a, 1.0 / s)[1] for b in range(blocks)
     ])  # fmt: skip
-    spread = np.sqrt((blocks - 1) / blocks * ((omitted - omitted.mean(0)) ** 2).sum(0))
+    spread = jackknife_std(omitted)
     a[p] = mass  # exactly, not to the solver's accuracy
     gains = torch.as_tensor(s) * nominal
-    std = torch.as_tensor(spread) * nominal
+    std = spread * nominal
     return DriveGains(
         tuple(model.joint_names), gains, nominal, std, std <= DETERMINED_SPREAD * gains,
         torch.as_tensor(a[:p]), torch.as_tensor(a[p:]), torch.as_tensor(np.sqrt(sigma2)),

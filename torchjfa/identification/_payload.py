@@ -10,22 +10,29 @@ So the payload's regressor is ``Z = Y_B A`` (``Y_B`` the body's 10 columns of th
 regressor), and
 
 * against the identified robot (``unloaded=None``): ``tau - Y theta = Z pi_L + e``, the loaded
-  logs' torques less the identified model's prediction, by least squares;
+  logs' torques less the identified model's prediction;
 * with unloaded runs: the robot's parameters are fitted again, together with the payload's,
   on both kinds of run, ``tau_unloaded = Y theta + e`` and ``tau_loaded = Y theta + Z pi_L +
-  e`` (least squares on the stacked rows): what the robot's model gets wrong is common to both
+  e`` (one regression on the stacked rows): what the robot's model gets wrong is common to both
   kinds and cancels in ``pi_L``, and the runs need not be aligned in time.
 
-Both fits weigh each joint's rows by ``1 / sigma_j``, ``sigma_j`` the joint's residual level in
-an unweighted fit first (`_joint_weights`). Either estimate is then made physically consistent:
-the closest payload in the data's (weighted) metric ``Z^T W Z`` with a positive semidefinite
-pseudo-inertia, inside ``bounds`` when the user gives a
-region the payload lies in (`Bounds`: a sphere or a box in the link's frame), a semidefinite
-program (`consistent_payload`). Spreads come from a delete-one-block jackknife over contiguous
-blocks of the logs; a parameter whose spread is large against its scale is marked as not
-determined (`Payload.determined`). Each log is prepared as `identify` prepares it (the
-identified model's cut-off, the rest at the ends dropped); the last ``options.validation`` of
-each loaded log is held out to judge the torques with and without the payload.
+Both are linear regressions over stacked rows, fitted on the flow's shared stages: the rows'
+`Moments` per joint and per contiguous block come from `stream_moments` (the robot's regressor;
+the payload's columns and right-hand side are linear maps of its moments, `mapped_moments`, so
+no regression matrix is formed), each joint's rows are weighted by its inverse residual variance
+in a first unweighted fit with ``options.weighting="residual"`` (`weighted_joints`, with the
+floor `JOINT_WEIGHT_FLOOR` of `identify`'s weights; ``"none"``: unweighted), the estimator is
+``options.estimator`` (`make_estimator`: least squares by default; one that takes an input
+noise learns it, none is given). Either estimate is then made physically consistent: the
+closest payload in the data's (weighted) metric ``Z^T W Z`` with a positive semidefinite
+pseudo-inertia, inside ``bounds`` when the user gives a region the payload lies in (`Bounds`: a
+sphere or a box in the link's frame), a semidefinite program (`consistent_payload`). Spreads
+come from the delete-one-block jackknife (`torchjfa.estimators.jackknife`) over
+``options.jackknife`` contiguous blocks of the logs (0: none); a parameter whose spread is large
+against its scale, or that the motion leaves free, is marked as not determined
+(`Payload.determined`). Each log is prepared as `identify` prepares it (the identified model's
+cut-off, the rest at the ends dropped); the last ``options.validation`` of each loaded log is
+held out to judge the torques with and without the payload.
 """
 
 from __future__ import annotations
@@ -35,13 +42,14 @@ from pathlib import Path
 
 import torch
 
-from ..data import JointLog
 from ..dynamics import ParameterLayout, RigidBodyModel
 from ..dynamics._parameters import inertial_from_vector, pseudo_inertia
+from ..estimators import LinearEstimator, jackknife
 from ..physical import inertial_from_pseudo_inertia
-from ._evaluate import _identified
+from ._fit import make_estimator
 from ._options import IdentificationError, Options
-from ._prepare import concatenate, read_prepared, several
+from ._prepare import concatenate, identified_model, read_prepared, several, split_held_out
+from ._stream import mapped_moments, stream_moments, weighted_joints
 
 __all__ = [
     "DETERMINED_SPREAD",
@@ -60,10 +68,10 @@ ONE_BODY = ParameterLayout(("payload",), ())
 PARAMETERS = ("m", "hx", "hy", "hz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 #: a parameter whose spread exceeds this share of its scale is reported as not determined
 DETERMINED_SPREAD = 0.2
-#: contiguous blocks of the logs for the jackknife spreads
-BLOCKS = 10
-#: each joint's rows weighted by its residual level (`_joint_weights`)
-WEIGHTED = True
+#: a direction of the column-scaled normal matrix whose eigenvalue is below this share of the
+#: largest is one the data leave free (`torchjfa.estimators.OLS`'s ``rcond``: the directions
+#: least squares treats as unidentifiable)
+_FREE_RCOND = 1e-12
 
 
 @dataclass(frozen=True)
@@ -180,12 +188,12 @@ class Payload:
         theta_hat: ``(10,)`` the least-squares estimate before the projection.
         std: ``(10,)`` spreads of ``theta_hat``: a delete-one-block jackknife over contiguous
             blocks of the logs (filtered rows are correlated; least-squares standard errors on
-            the rows would understate them).
+            the rows would understate them); NaN with ``options.jackknife=0``.
         determined: ``(10,)`` bool: the spread at most `DETERMINED_SPREAD` of the parameter's
             scale (the mass for ``m``, ``m L`` for ``h``, ``m L^2`` for ``I_o``, ``L`` the
-            payload's radius of gyration about the link's origin, at least 1 cm); an
-            undetermined parameter takes the value the consistency (and ``bounds``) leave
-            closest to the data.
+            payload's radius of gyration about the link's origin, at least 1 cm; not judged
+            without spreads); an undetermined parameter takes the value the consistency (and
+            ``bounds``) leave closest to the data.
         bounds: the region the payload was kept inside, or None.
         rms_without, rms_with: ``(n_dof,)`` held-out torque RMS of the robot model alone and
             with the payload, N m.
@@ -219,7 +227,9 @@ class Payload:
         lines = [
             f"# Payload on {self.link}",
             "",
-            f"- mass {self.mass:.4g} kg +- {m_std:.2g} (jackknife spread of the estimate)",
+            f"- mass {self.mass:.4g} kg +- {m_std:.2g} (jackknife spread of the estimate)"
+            if m_std == m_std
+            else f"- mass {self.mass:.4g} kg (no jackknife spread: jackknife=0)",
             f"- centre of mass ({com}) m in {self.link}'s frame",
             f"- held-out torque RMS, mean over joints: {without:.4g} N m with the robot model "
             f"alone, {with_:.4g} N m with the payload ({with_ / max(without, 1e-300):.2f}x)",
@@ -289,18 +299,12 @@ def _prepared(logs, model, options, cutoff):
     heads, tails = [], []
     for source in several(logs):
         _, data = read_prepared(source, model, options, cutoff)
-        head, tail = data.split(options.validation, gap=int(4.0 / cutoff * data.info["rate_hz"]))
+        head, tail = split_held_out(data, options.validation, cutoff)
         heads.append(head)
         tails.append(tail)
     if not heads:
         raise IdentificationError("no loaded log given")
     return concatenate(heads), concatenate(tails)
-
-
-def _rows(model, log: JointLog):
-    """``(Y (n d, p), tau (n d,))`` of a prepared log."""
-    Y = model.regressor(log.q, log.qd, log.qdd)
-    return Y.reshape(-1, model.n_params), log.tau.reshape(-1)
 
 
 def identify_payload(
@@ -320,7 +324,10 @@ def identify_payload(
             ``options`` gives the columns, the drive gains of currents, ...).
         link: the frame the payload is fixed to (e.g. the flange, ``"ee_link"``).
         unloaded: logs without it, or None (see the module).
-        options: `Options` (reading, ``filter``, ``velocity``, ``validation``, ``trim_rest``).
+        options: `Options`: reading, ``filter``, ``velocity``, ``validation``, ``trim_rest``;
+            ``estimator`` (and its ``estimator_options``), ``weighting`` (``"residual"``: each
+            joint's rows by its inverse residual variance, ``"none"``), ``jackknife`` (blocks
+            of the spreads, 0: none) and ``compute``.
         bounds: a region of the link's frame the payload lies in (`Bounds` or its text, e.g.
             ``"sphere:0.15"``), or None.
 
@@ -330,68 +337,66 @@ def identify_payload(
     """
     options = Options() if options is None else options
     bounds = Bounds.parse(bounds) if isinstance(bounds, str) else bounds
-    model, theta, cutoff = _identified(identified)
-    j, A = payload_regressor(model, link)
-    cols = model.layout.split(torch.arange(model.n_params))[0][j]
+    ident = identified_model(identified)
+    model, theta, cutoff = ident.model, ident.theta, ident.cutoff_hz
+    carrier, A = payload_regressor(model, link)
+    select = torch.zeros(model.n_params, 10, dtype=torch.float64)  # (p, 10): Z = Y select
+    select[model.layout.split(torch.arange(model.n_params))[0][carrier]] = A
     train, held = _prepared(loaded, model, options, cutoff)
-    Y, tau = _rows(model, train)
-    Z = Y[:, cols] @ A
-    which = _block_of_rows(Y.shape[0], model.n_dof)
-    if unloaded is None:
-        X, y = Z, tau - Y @ theta
+    estimator = make_estimator(options)
+    n_blocks = int(estimator.cv) if estimator.needs_folds else max(int(options.jackknife), 1)
+    stream = {"per_joint": True, **options.compute.stream()}
+    loaded_rows = stream_moments(model, train, n_folds=n_blocks, **stream)
+    if unloaded is None:  # tau - Y theta = Z pi
+        blocks = [[mapped_moments(m, select, theta) for m in b] for b in loaded_rows]
         how = "the loaded logs' torques less the identified robot's prediction"
-    else:
+    else:  # [tau; tau_u] = [[Z, Y], [0, Y]] (pi, theta)
         free, _ = _prepared(unloaded, model, options, cutoff)
-        Yu, tau_u = _rows(model, free)
-        X = torch.cat([torch.cat([Z, Y], 1), torch.cat([torch.zeros_like(Yu[:, :10]), Yu], 1)])
-        y = torch.cat([tau, tau_u])
-        which = torch.cat([which, _block_of_rows(Yu.shape[0], model.n_dof)])
+        free_rows = stream_moments(model, free, n_folds=n_blocks, **stream)
+        eye = torch.eye(model.n_params, dtype=torch.float64)
+        with_, without = torch.cat([select, eye], 1), torch.cat([0 * select, eye], 1)
+        blocks = [
+            [
+                mapped_moments(m, with_) + mapped_moments(u, without)
+                for m, u in zip(b, c, strict=True)
+            ]
+            for b, c in zip(loaded_rows, free_rows, strict=True)
+        ]
         how = "loaded and unloaded runs together, the robot's parameters fitted again"
-    w = _joint_weights(X, y, model.n_dof) if WEIGHTED else torch.ones(X.shape[0], dtype=X.dtype)
-    X, y = X * w[:, None], y * w
-    pi_hat = _lstsq(X, y)[:10]
-    std = _jackknife(X, y, which)
-    Zw = Z * w[: Z.shape[0], None]
-    metric = Zw.T @ Zw
+    folds, w = weighted_joints(blocks, options.weighting)
+    total = sum(folds[1:], folds[0].copy())
+    estimator.fit_moments(folds if estimator.needs_folds else total)
+    pi_hat = estimator.coef_.detach().to(torch.float64).cpu()[:10]
+    std = torch.full((10,), float("nan"), dtype=torch.float64)
+    if options.jackknife:
+        std = jackknife(estimator, folds)[1].cpu()[:10]
+    metric = total.xtx.cpu()[:10, :10]  # Z^T W Z: the unloaded rows have no payload columns
     pi = consistent_payload(pi_hat, metric, bounds)
     mass, com, inertia = inertial_from_vector(pi)
-    Yh, tau_h = _rows(model, held)
-    base = tau_h - Yh @ theta
-    without = base.reshape(-1, model.n_dof)
-    with_ = (base - (Yh[:, cols] @ A) @ pi).reshape(-1, model.n_dof)
+    rms_without, rms_with = _held_out_rms(model, held, select, theta, pi, options)
+    how += f"; {_name(estimator, options)}" + (
+        ", each joint's rows weighted by its residual level" if w is not None else ""
+    )
     return Payload(
-        link, float(mass), com, inertia, pi, pi_hat, std, _determined(pi, std, X), bounds,
-        without.pow(2).mean(0).sqrt(), with_.pow(2).mean(0).sqrt(), how,
+        link, float(mass), com, inertia, pi, pi_hat, std, _determined(pi, std, total.xtx.cpu()),
+        bounds, rms_without, rms_with, how,
     )  # fmt: skip
 
 
-def _joint_weights(X: torch.Tensor, y: torch.Tensor, n_dof: int) -> torch.Tensor:
-    """``(n_rows,)`` each row's weight ``1 / sigma_j``: ``sigma_j^2`` the residual variance of
-    its joint's rows in an unweighted fit (rows are sample-major, ``n_dof`` per sample), so
-    that quiet joints (often the wrist's, which see a payload's inertia best) are not drowned
-    by noisy ones."""
-    r = y - X @ _lstsq(X, y)
-    joint = torch.arange(X.shape[0]) % n_dof
-    var = torch.zeros(n_dof, dtype=X.dtype).index_add_(0, joint, r * r)
-    var = var / torch.bincount(joint, minlength=n_dof).to(X.dtype)
-    var = var.clamp_min(1e-12 * float(var.max()) if float(var.max()) > 0 else 1e-300)
-    return var.rsqrt()[joint]
+def _held_out_rms(model, held, select, theta, pi, options):
+    """``(n_dof,)`` twice: the held-out torque RMS of the robot model alone and with the
+    payload, N m (from the held-out rows' moments per joint)."""
+    rows = stream_moments(model, held, per_joint=True, **options.compute.stream())
+    parts = [mapped_moments(m.to("cpu"), select, theta) for m in rows]
+    without = torch.stack([m.yty / m.n for m in parts]).clamp_min(0.0).sqrt()
+    with_ = torch.stack([m.rss(pi) / m.n for m in parts]).clamp_min(0.0).sqrt()
+    return without, with_
 
 
-def _block_of_rows(n_rows: int, n_dof: int) -> torch.Tensor:
-    """``(n_rows,)`` the jackknife block of each row (a sample's joints stay together)."""
-    samples = torch.arange(n_rows) // n_dof
-    return samples * BLOCKS // max(1, n_rows // n_dof)
-
-
-def _lstsq(X: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    return torch.linalg.lstsq(X, y.unsqueeze(1), driver="gelsd").solution.flatten()
-
-
-def _jackknife(X: torch.Tensor, y: torch.Tensor, which: torch.Tensor) -> torch.Tensor:
-    """``(10,)`` the delete-one-block jackknife spread of the payload's least-squares estimate."""
-    est = torch.stack([_lstsq(X[which != b], y[which != b])[:10] for b in range(BLOCKS)])
-    return ((BLOCKS - 1) / BLOCKS * (est - est.mean(0)).pow(2).sum(0)).sqrt()
+def _name(estimator: LinearEstimator, options: Options) -> str:
+    """The estimator's name for ``Payload.how``."""
+    name = options.estimator if isinstance(options.estimator, str) else type(estimator).__name__
+    return "least squares (ols)" if name == "ols" else f"estimator {name}"
 
 
 def _scale(pi: torch.Tensor) -> tuple[float, float]:
@@ -402,18 +407,20 @@ def _scale(pi: torch.Tensor) -> tuple[float, float]:
     return m, min(max((trace / (2 * m)) ** 0.5, 0.01), 1.0)
 
 
-def _determined(pi: torch.Tensor, std: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
-    """``(10,)`` bool: the parameter is estimable from the rows ``X`` (its unit vector has no
-    part in ``X``'s null space: a column the motion never excites has one) and its spread is
-    at most `DETERMINED_SPREAD` of its scale."""
+def _determined(pi: torch.Tensor, std: torch.Tensor, xtx: torch.Tensor) -> torch.Tensor:
+    """``(10,)`` bool: the parameter is estimable from the rows whose normal matrix is ``xtx``
+    (payload columns first; its unit vector has no part in the null space: a column the
+    motion never excites has one) and its spread is at most `DETERMINED_SPREAD` of its scale
+    (not judged where there is no spread, NaN)."""
     m, L = _scale(pi)
     unit = torch.tensor([m, *(m * L,) * 3, *(m * L * L,) * 6], dtype=torch.float64)
-    norms = X.norm(dim=0).clamp_min(1e-300)
-    _, sv, Vh = torch.linalg.svd(X / norms, full_matrices=False)
-    null = Vh[sv <= 1e-9 * sv[0]]  # (k, n_cols), columns scaled to unit norm
+    norms = torch.diagonal(xtx).clamp_min(0.0).sqrt().clamp_min(1e-300)
+    ev, V = torch.linalg.eigh(xtx / norms[:, None] / norms[None, :])  # columns of unit norm
+    null = V[:, ev <= _FREE_RCOND * ev[-1]].T  # (k, n_cols)
     free = null[:, :10].norm(dim=0) > 1e-6 if null.numel() else torch.zeros(10, dtype=torch.bool)
-    excited = X[:, :10].norm(dim=0) > 0
-    return excited & ~free & (std <= DETERMINED_SPREAD * unit)
+    excited = torch.diagonal(xtx)[:10] > 0
+    spread_ok = (std <= DETERMINED_SPREAD * unit) | std.isnan()
+    return excited & ~free & spread_ok
 
 
 def consistent_payload(pi_hat, metric, bounds: Bounds | None = None) -> torch.Tensor:
@@ -467,7 +474,8 @@ def write_with_payload(identified, payload: Payload, folder) -> Path:
     import tempfile
     import xml.etree.ElementTree as ET
 
-    model, theta, _ = _identified(identified)
+    ident = identified_model(identified)
+    model, theta = ident.model, ident.theta
     urdf = model.source_format == "urdf"
     with tempfile.TemporaryDirectory() as tmp:
         written = Path(tmp) / ("robot.urdf" if urdf else "robot.xml")

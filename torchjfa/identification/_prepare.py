@@ -1,5 +1,8 @@
 """The `prepare_data` stage: the rest at the logs' ends, the cut-off, the zero-phase filter,
-the derivatives and the held-out part of each log (`torchjfa.data.prepare`)."""
+the derivatives and the held-out part of each log (`torchjfa.data.prepare`); and for the
+stages that start from an identified model (`evaluate`, `identify_payload`,
+`identify_drive_gains`), the model with the cut-off it was identified at (`identified_model`)
+and each log prepared at that cut-off (`read_prepared`, `split_held_out`)."""
 
 from __future__ import annotations
 
@@ -11,15 +14,18 @@ import torch
 
 from ..data import (
     DEFAULT_CUTOFF_HZ,
+    EDGE_PERIODS,
     JointLog,
     LogError,
     armature_helps,
     choose_cutoff,
     cutoff_grid,
+    edge_seconds,
     prepare,
 )
 from ..data._rest import RestSpan, motion_span
 from ..dynamics import RigidBodyModel
+from ..io import IdentifiedModel, read_identified
 from ._channels import channel_warnings
 from ._options import IdentificationError, Options
 from ._read import RawLog, enough, read
@@ -147,8 +153,8 @@ def prepare_data(
     with ``"auto"`` the one `torchjfa.data.choose_cutoff` finds on the longest log, on the part
     of it the held-out data never reach. With ``options.trim_rest`` the standing still at each
     log's ends is dropped first (`torchjfa.data.motion_span`), all but the filter's reach
-    (``4 / cutoff`` s), which the preparation drops anyway. Without ``validation`` logs the
-    last ``options.validation`` of each prepared log is held out, ``4 / cutoff`` s apart from
+    (`torchjfa.data.edge_seconds`), which the preparation drops anyway. Without ``validation``
+    logs the last ``options.validation`` of each prepared log is held out, that reach apart from
     its training part, so that every log contributes to both; a log too short to split
     trains only, and one too short to prepare is left out, each with a warning.
 
@@ -172,7 +178,7 @@ def prepare_data(
     warnings = [w for r in raws + held for w in r.warnings]
     spans = [_span(r.log, options) for r in raws]
     longest = max(range(len(raws)), key=lambda i: raws[i].log.duration)
-    pick = _trim(raws[longest].log, spans[longest], 4.0 / _lowest(options))
+    pick = _trim(raws[longest].log, spans[longest], edge_seconds(_lowest(options)))
     cutoff, how, v_c = _cutoff(model, pick, options, not held, warnings)
     if len(raws) > 1 and options.cutoff == "auto":
         how += f" (on the longest log, {raws[longest].log.source})"
@@ -204,11 +210,11 @@ def prepare_data(
             r.log.source for r in held
         )
     else:
-        gaps = "the filter's reach (4 / cut-off) apart"
+        gaps = f"the filter's reach ({EDGE_PERIODS:g} / cut-off) apart"
         each = "of each log" if len(raws) > 1 else "of the log"
         split = f"last {options.validation:.0%} {each}, {gaps}"
         if single:
-            gap = int(4.0 / cutoff * parts[0].info["rate_hz"])
+            gap = _gap(cutoff, parts[0].info)
             split = f"last {options.validation:.0%} of the log, {gap} samples apart"
     train = concatenate(trains)
     enough(train.n_samples, model, "after filtering and the validation split, training has")
@@ -258,14 +264,14 @@ def _choice_log(log: JointLog, options: Options, held_in_log: bool) -> JointLog:
         return log
     # the held-out part is not seen by the choice: it starts at (1 - v) of the log less
     # (1 - 2 v) of the filter's edge (the split is by prepared samples, the edges trimmed),
-    # 4 / f s at the grid's lowest cut-off f
+    # at the grid's lowest cut-off
     v = options.validation
-    end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * 4.0 / _lowest(options)
+    end = (1.0 - v) * log.duration - max(0.0, 1.0 - 2.0 * v) * edge_seconds(_lowest(options))
     return log.select(log.t < log.t[0] + end)
 
 
 def _lowest(options: Options) -> float:
-    """The lowest cut-off the preparation may use, Hz (the filter's reach is 4 / it)."""
+    """The lowest cut-off the preparation may use, Hz (the longest reach of the filter)."""
     return float(options.cutoff) if options.cutoff != "auto" else cutoff_grid()[0]
 
 
@@ -292,7 +298,7 @@ def _trim(log: JointLog, span: RestSpan | None, keep_s: float) -> JointLog:
 def _part(log, span, prep, cutoff, fraction, single, warnings) -> LogPart:
     """One log prepared (its rest dropped) and split: ``fraction`` None trains only, 1.0
     holds it all out; ``single``: the only log, whose errors are raised."""
-    raw = _trim(log, span, 4.0 / cutoff)
+    raw = _trim(log, span, edge_seconds(cutoff))
     rest = (0.0, 0.0) if span is None else (span.rest_start_s, span.rest_end_s)
     try:
         data = prepare(raw, **prep)
@@ -305,15 +311,29 @@ def _part(log, span, prep, cutoff, fraction, single, warnings) -> LogPart:
         return LogPart(log.source, raw, dict(data.info), data, None, rest)
     if fraction == 1.0:
         return LogPart(log.source, raw, dict(data.info), None, data, rest)
-    gap = int(4.0 / cutoff * data.info["rate_hz"])
     try:
-        train, valid = data.split(fraction, gap=gap)
+        train, valid = split_held_out(data, fraction, cutoff)
     except LogError as exc:
         if single:
             raise
         warnings.append(f"{exc}; the whole log is used for training")
         return LogPart(log.source, raw, dict(data.info), data, None, rest)
     return LogPart(log.source, raw, dict(data.info), train, valid, rest)
+
+
+def split_held_out(data: JointLog, fraction: float, cutoff_hz: float):
+    """``(train, held_out)``: the last ``fraction`` of a prepared log held out, the filter's
+    reach (`torchjfa.data.edge_seconds` of ``cutoff_hz``) apart from the rest.
+
+    Raises:
+        LogError: on a log too short to split.
+    """
+    return data.split(fraction, gap=_gap(cutoff_hz, data.info))
+
+
+def _gap(cutoff_hz: float, info: dict) -> int:
+    """The filter's reach in samples of a prepared log (its ``info``)."""
+    return int(edge_seconds(cutoff_hz) * info["rate_hz"])
 
 
 def concatenate(logs: Sequence[JointLog]) -> JointLog:
@@ -393,13 +413,39 @@ def several(logs) -> list:
     return [logs]
 
 
+def identified_model(identified) -> IdentifiedModel:
+    """The identified robot that `evaluate`, `identify_payload` and `identify_drive_gains`
+    start from, with ``theta`` in float64.
+
+    Args:
+        identified: a ``model.npz`` path (`torchjfa.io.read_identified`: its
+            ``cutoff_hz`` is the cut-off it was identified at), or a ``(RigidBodyModel,
+            theta)`` pair (no cut-off stored: `torchjfa.data.DEFAULT_CUTOFF_HZ`).
+
+    Raises:
+        IdentificationError: on a path that is no file, or a file that is no model file or a
+            damaged one.
+    """
+    if isinstance(identified, Sequence) and not isinstance(identified, str):
+        model, theta = identified
+        return IdentifiedModel(model, torch.as_tensor(theta, dtype=torch.float64))
+    path = os.fspath(identified)
+    if not os.path.isfile(path):
+        raise IdentificationError(f"no model file {path!r}")
+    try:
+        ident = read_identified(path)
+    except ValueError as exc:  # not a model file, or a damaged one: the message says which
+        raise IdentificationError(f"{path}: {exc}") from None
+    return replace(ident, theta=ident.theta.to(torch.float64))
+
+
 def read_prepared(source, model: RigidBodyModel, options: Options, cutoff_hz: float):
     """``(raw, prepared)``: a log read (`read`), the rest at its ends dropped (with
     ``options.trim_rest``) and prepared whole at ``cutoff_hz`` with the options' filter,
     velocities and decimation and no period, as a saved model is judged (`evaluate`,
     `identify_payload`)."""
     raw = read(source, model, options).log
-    raw = _trim(raw, _span(raw, options), 4.0 / cutoff_hz)
+    raw = _trim(raw, _span(raw, options), edge_seconds(cutoff_hz))
     prep = {"cutoff_hz": cutoff_hz, "method": options.filter, "velocity": options.velocity,
             "period_s": None, "decimate": options.decimate}  # fmt: skip
     return raw, prepare(raw, **prep)

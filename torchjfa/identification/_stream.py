@@ -4,11 +4,15 @@
 straight from the zip archive, in-memory arrays sliced), forms the regressor of each chunk and
 accumulates `Moments` (of the whole, of contiguous folds, or per joint), split between the
 processes of ``torch.distributed`` when asked; `residual_joint_weights` uses it for the per-joint
-weights of weighted least squares. Both are re-exported by `torchjfa.identification`, the
-public place to import them from; its `fit` stage's docstring gives the memory bound.
+weights of weighted least squares, which `joint_weights` computes from any per-joint `Moments`
+(the payload's too) with one floor, `JOINT_WEIGHT_FLOOR`. `stream_moments` and
+`residual_joint_weights` are re-exported by `torchjfa.identification`, the public place to
+import them from; its `fit` stage's docstring gives the memory bound.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import torch
 
@@ -19,7 +23,21 @@ from ..distributed import all_reduce_moments, rank_and_world_size, shard_range
 from ..dynamics import RigidBodyModel
 from ..stats import Moments
 
-__all__ = ["residual_joint_weights", "stream_moments"]
+__all__ = [
+    "JOINT_WEIGHT_FLOOR",
+    "inverse_variance_weights",
+    "joint_weights",
+    "mapped_moments",
+    "residual_joint_weights",
+    "stream_moments",
+    "weighted_joints",
+]
+
+#: the smallest residual variance a joint's weight assumes, as a share of the largest joint's:
+#: no joint weighs more than ``1 / JOINT_WEIGHT_FLOOR`` times another, so that a joint whose
+#: residual is all but zero (a joint that barely moves, or one a fit reproduces exactly) does
+#: not decide every parameter alone
+JOINT_WEIGHT_FLOOR = 1e-3
 
 
 # ---------------------------------------------------------------------------------- sources
@@ -163,7 +181,12 @@ def stream_moments(
 
 
 def residual_joint_weights(
-    model: RigidBodyModel, logs, *, floor: float = 1e-3, chunk_size: int = 4096, **kwargs
+    model: RigidBodyModel,
+    logs,
+    *,
+    floor: float = JOINT_WEIGHT_FLOOR,
+    chunk_size: int = 4096,
+    **kwargs,
 ) -> torch.Tensor:
     """Per-joint weights ``1 / sigma_j^2`` for weighted least squares, scaled to mean 1.
 
@@ -178,7 +201,7 @@ def residual_joint_weights(
         model: the robot.
         logs: as for `stream_moments`.
         floor: ``sigma_j^2`` is at least ``floor`` times the largest joint's (weights at most
-            ``1 / floor`` times the smallest).
+            ``1 / floor`` times the smallest; `JOINT_WEIGHT_FLOOR`).
         chunk_size: as for `stream_moments`.
         **kwargs: more `stream_moments` options (``distributed``, ``group``, ``device``,
             ``progress``, ``compiled``).
@@ -186,16 +209,96 @@ def residual_joint_weights(
     Returns:
         ``(n_dof,)`` float64 weights, mean 1, in the model's joint order.
     """
+    parts = stream_moments(model, logs, chunk_size=chunk_size, per_joint=True, **kwargs)
+    return joint_weights(parts, floor=floor)
+
+
+def joint_weights(parts: Sequence[Moments], *, floor: float = JOINT_WEIGHT_FLOOR) -> torch.Tensor:
+    """``(n_dof,)`` weights ``1 / sigma_j^2``, mean 1, from each joint's `Moments`.
+
+    ``sigma_j^2`` is the residual variance of joint ``j``'s rows under the ordinary least
+    squares fit of all the joints' rows together (`residual_joint_weights`, whose rows are the
+    robot's; the payload's rows are its own).
+
+    Args:
+        parts: ``n_dof`` `Moments` of the same features, joint ``j``'s rows in the ``j``-th.
+        floor: as for `residual_joint_weights` (`inverse_variance_weights`).
+
+    Returns:
+        ``(n_dof,)`` float64 weights on the moments' device.
+    """
     from ..estimators import OLS
 
-    parts = stream_moments(model, logs, chunk_size=chunk_size, per_joint=True, **kwargs)
     total = sum(parts[1:], parts[0].copy())
     theta = OLS(fit_intercept=False).fit_moments(total).coef_
     var = torch.stack([m.rss(theta).clamp_min(0.0) / m.n for m in parts])
-    var = var.clamp_min(float(floor) * float(var.max()))
+    return inverse_variance_weights(var, floor=floor)
+
+
+def weighted_joints(blocks: Sequence[Sequence[Moments]], weighting: str = "residual"):
+    """``(folds, w)``: per block the joints' `Moments` summed, joint ``j``'s weighted by
+    ``w_j``: with ``weighting="residual"`` the `joint_weights` of the joints' moments over all
+    blocks, with ``"none"`` w None (unweighted).
+
+    Args:
+        blocks: per contiguous block, ``n_dof`` `Moments` (``stream_moments(...,
+            per_joint=True, n_folds=K)``, or moments mapped from them: `mapped_moments`).
+        weighting: ``Options.weighting``.
+    """
+    if weighting not in ("residual", "none"):
+        raise ValueError(f"weighting must be 'residual' or 'none', got {weighting!r}")
+    w = None
+    if weighting == "residual":
+        w = joint_weights([sum(ms[1:], ms[0].copy()) for ms in zip(*blocks, strict=True)])
+    folds = []
+    for ms in blocks:
+        if w is not None:
+            ms = [_scaled(m, float(wj)) for m, wj in zip(ms, w, strict=True)]
+        folds.append(sum(ms[1:], ms[0].copy()))
+    return folds, w
+
+
+def mapped_moments(m: Moments, T: torch.Tensor, shift: torch.Tensor | None = None) -> Moments:
+    """The `Moments` of the rows ``(x^T T, y - x^T shift)`` from those of ``(x, y)``, without
+    the rows: ``T`` ``(d, k)`` maps the features (a payload's columns are a linear map of the
+    robot's regressor), ``shift`` ``(d,)`` (or None) moves a prediction to the right-hand
+    side."""
+    T = T.to(m.xtx)
+    xty, yty, sum_y = m.xty, m.yty, m.sum_y
+    if shift is not None:
+        s = shift.to(m.xtx)
+        xty = m.xty - m.xtx @ s
+        yty = m.yty - 2 * s @ m.xty + s @ m.xtx @ s
+        sum_y = m.sum_y - s @ m.sum_x
+    xtx = T.T @ m.xtx @ T
+    return Moments(m.n.clone(), T.T @ m.sum_x, sum_y, 0.5 * (xtx + xtx.T), T.T @ xty, yty,
+                   n_rows=m.n_rows)  # fmt: skip
+
+
+def _scaled(m: Moments, w: float) -> Moments:
+    """The `Moments` of the same rows, each weighted ``w`` times more."""
+    fields = (m.n, m.sum_x, m.sum_y, m.xtx, m.xty, m.yty)
+    return Moments(*(w * f for f in fields), n_rows=m.n_rows)
+
+
+def inverse_variance_weights(variances, *, floor: float = JOINT_WEIGHT_FLOOR) -> torch.Tensor:
+    """``(n,)`` weights ``1 / max(v_j, floor * max_k v_k)``, scaled to mean 1; all ones when
+    every variance is 0.
+
+    Args:
+        variances: ``(n,)`` non-negative variances (a tensor or an array).
+        floor: the smallest variance assumed, as a share of the largest (> 0; 1 or more gives
+            equal weights).
+
+    Raises:
+        ValueError: on a floor that is not a positive number.
+    """
+    if not 0.0 < float(floor) < float("inf"):
+        raise ValueError(f"floor must be a positive number, got {floor!r}")
+    var = torch.as_tensor(variances, dtype=torch.float64)
     if not bool(var.max() > 0):
-        return torch.ones(model.n_dof, dtype=torch.float64)
-    w = 1.0 / var
+        return torch.ones_like(var)
+    w = 1.0 / var.clamp_min(float(floor) * float(var.max()))
     return w / w.mean()
 
 

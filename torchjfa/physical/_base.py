@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ..dynamics._parametrizations import resolve_layout
+from ..estimators._jackknife import jackknife_std
 from ..stats import Moments
 
 __all__ = ["BaseParameters", "base_parameters", "parameter_scales", "parameter_kind"]
@@ -177,9 +178,7 @@ class BaseParameters:
         """``(rank,)`` the delete-one-block jackknife spread of the base parameters from the
         ``(K, n_params)`` leave-one-block-out coefficients (`torchjfa.estimators.jackknife`):
         unlike single parameters', these spreads are finite whatever the null space."""
-        b = self.values(torch.as_tensor(coefs, dtype=torch.float64))
-        K = b.shape[0]
-        return ((K - 1) / K * (b - b.mean(0)).pow(2).sum(0)).sqrt()
+        return jackknife_std(self.values(torch.as_tensor(coefs, dtype=torch.float64)))
 
     def combinations(self, *, min_coef: float = 1e-6) -> list[str]:
         """Each base parameter as text, ``"j1.Iyy + 0.16 j2.m + 0.4 j2.mcx"``; dependent terms
