@@ -142,6 +142,12 @@ def test_the_command_writes_the_payload_and_refuses_an_unknown_link(tmp_path, ca
     want = before[joint] + A @ torch.tensor(summary["theta"], dtype=torch.float64)
     assert torch.allclose(after[joint], want, rtol=1e-9, atol=1e-12)
     assert torch.equal(after[1 - joint], before[1 - joint])
+    # the fit's options are Options' own: no jackknife, unweighted
+    plain = ["--jackknife", "0", "--weighting", "none", "--out", str(tmp_path / "r")]
+    assert main([*args, "--link", "tool", *plain]) == 0
+    again = json.loads((tmp_path / "r" / "payload.json").read_text())
+    assert again["mass"] == pytest.approx(MASS, rel=1e-3)
+    assert "no jackknife spread" in (tmp_path / "r" / "payload.md").read_text()
     capsys.readouterr()
     assert main([*args, "--link", "nosuch", "--out", str(tmp_path / "q")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

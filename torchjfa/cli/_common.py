@@ -140,18 +140,24 @@ def add_option(group, f: Field) -> None:
     )
 
 
-def add_reading(p: argparse.ArgumentParser) -> None:
+def add_reading(p: argparse.ArgumentParser, *more: str) -> None:
     """The reading options of `torchjfa.identification.Options` (columns, time scale, drive
-    gains, ROS topic and effort), as ``identify`` has them."""
-    group = p.add_argument_group(GROUPS["reading"])
+    gains, ROS topic and effort), as ``identify`` has them, and the fields ``more`` names (in
+    their own groups)."""
+    groups: dict[str, object] = {}
     for f in cli_fields():
-        if f.metadata["group"] == "reading" and f.name != "max_seconds":
-            add_option(group, f)
+        reads = f.metadata["group"] == "reading" and f.name != "max_seconds"
+        if reads or f.name in more:
+            key = f.metadata["group"]
+            if key not in groups:
+                groups[key] = p.add_argument_group(GROUPS[key])
+            add_option(groups[key], f)
 
 
-def reading(args) -> Options:
-    """The `torchjfa.identification.Options` of the reading flags `add_reading` added."""
-    fields = [f for f in cli_fields() if f.metadata["group"] == "reading"]
+def reading(args, *more: str) -> Options:
+    """The `torchjfa.identification.Options` of the flags ``add_reading(p, *more)`` added (the
+    others at their defaults)."""
+    fields = [f for f in cli_fields() if f.metadata["group"] == "reading" or f.name in more]
     return Options(**{f.name: getattr(args, f.name) for f in fields if hasattr(args, f.name)})
 
 

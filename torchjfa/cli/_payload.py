@@ -16,6 +16,9 @@ from ._common import UsageError, add_reading, reading
 
 __all__ = ["add_payload", "cmd_payload"]
 
+#: the `torchjfa.identification.Options` fields the command takes besides the reading ones
+FIT_OPTIONS = ("estimator", "estimator_options", "weighting", "jackknife")
+
 
 def add_payload(sub) -> argparse.ArgumentParser:
     """The ``payload`` sub-command's parser (runs `cmd_payload`)."""
@@ -48,7 +51,7 @@ def add_payload(sub) -> argparse.ArgumentParser:
         "link's origin), sphere:X,Y,Z,R or box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
     )
     p.add_argument("--out", default="payload", help="output folder")
-    add_reading(p)
+    add_reading(p, *FIT_OPTIONS)
     p.set_defaults(func=cmd_payload)
     return p
 
@@ -61,9 +64,13 @@ def cmd_payload(args) -> int:
     if args.mass is not None:
         return _drive_gains(args)
     payload = identify_payload(
-        args.model, args.loaded, link=args.link, unloaded=args.unloaded, options=reading(args),
+        args.model,
+        args.loaded,
+        link=args.link,
+        unloaded=args.unloaded,
+        options=reading(args, *FIT_OPTIONS),
         bounds=args.bounds,
-    )  # fmt: skip
+    )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
@@ -87,7 +94,7 @@ def _drive_gains(args) -> int:
         raise UsageError("--mass identifies the drive gains and needs --unloaded runs too")
     found = identify_drive_gains(
         args.model, args.loaded, args.unloaded, link=args.link, mass=args.mass,
-        options=reading(args),
+        options=reading(args, *FIT_OPTIONS),
     )  # fmt: skip
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -45,11 +45,15 @@ def add_refine(sub) -> argparse.ArgumentParser:
 
 def cmd_refine(args) -> int:
     """Run ``torchjfa refine`` (see `add_refine`)."""
-    from ..identification._evaluate import _identified
     from ..identification._prepare import read_prepared, several
+    from ..io import read_identified
     from ..sim import refine
 
-    model, theta, cutoff = _identified(args.model)
+    try:
+        ident = read_identified(args.model)
+    except (OSError, ValueError) as exc:  # no file, not a model file, or a damaged one
+        raise UsageError(str(exc)) from None
+    model, theta, cutoff = ident.model, ident.theta.double(), ident.cutoff_hz
     options = reading(args)
 
     def prepared(logs):

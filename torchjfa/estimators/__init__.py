@@ -15,6 +15,7 @@ from ._base import LinearEstimator as LinearEstimator
 from ._bootstrap import bootstrap as bootstrap
 from ._bootstrap import redraw_moments as redraw_moments
 from ._jackknife import jackknife as jackknife
+from ._jackknife import jackknife_std as jackknife_std
 from ._jfa import JFA as JFA
 from ._jfa import BayesianJFA as BayesianJFA
 from ._lasso import Lasso as Lasso

@@ -96,19 +96,11 @@ def jackknife(
     K = len(folds)
     if K < 2:
         raise ValueError(f"the jackknife needs at least 2 folds, got {K}")
-    if hasattr(estimator, "fit_batch") and not estimator.needs_folds:
-        # the K refits in one batched call (JFA, BayesianJFA): the same fits, less overhead
-        quiet = copy.deepcopy(estimator)
-        if hasattr(quiet, "verbose"):
-            quiet.verbose = progress
-        totals = [refit_totals(folds, k) for k in range(K)]
-        coefs = [est.coef_.detach().to(torch.float64) for est in quiet.fit_batch(totals)]
-    else:
-        coefs = []
-        with progress_bar(total=K, desc="jackknife", enabled=progress, unit="fit") as bar:
-            for k in range(K):
-                est, _ = refit_without(estimator, folds, k)
-                coefs.append(est.coef_.detach().to(torch.float64))
-                bar.update(1)
+    coefs = []
+    with progress_bar(total=K, desc="jackknife", enabled=progress, unit="fit") as bar:
+        for k in range(K):
+            est, _ = refit_without(estimator, folds, k)
+            coefs.append(est.coef_.detach().to(torch.float64))
+            bar.update(1)
     C = torch.stack(coefs)
     return C, jackknife_std(C)

@@ -205,10 +205,3 @@ def _fits(model, params, log: JointLog) -> dict[str, TorqueFit]:
         nmse, rms = torque_errors(log.tau, pred)
         out[name] = TorqueFit(nmse=nmse, rms=rms, predicted=pred)
     return out
-
-
-def _identified(identified) -> tuple[RigidBodyModel, torch.Tensor, float]:
-    """``(model, theta, cut-off in Hz)`` of a model file or a pair (`identified_model`), as
-    ``torchjfa refine`` reads it; elsewhere use `torchjfa.io.read_identified`."""
-    ident = identified_model(identified)
-    return ident.model, ident.theta, ident.cutoff_hz
