@@ -7,6 +7,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
+from subprocess import PIPE
 
 import numpy as np
 import pytest
@@ -17,15 +18,9 @@ from torchjfa.data import read_log, write_log
 from torchjfa.io import load_identified, read_identified
 from torchjfa.report import torque_errors
 
-FAST_OLS = ["--quiet", "--jackknife", "2", "--no-plots"]
+# no bias correction (OLS's 20 refits by default): tests/identification/test_bias_correction.py
+FAST_OLS = ["--quiet", "--jackknife", "2", "--no-plots", "--bias-correction", "0"]
 FAST = [*FAST_OLS, "--max-iter", "300"]  # Bayesian JFA's (an error with another estimator)
-
-
-@pytest.fixture(scope="module")
-def head_csv(tmp_path_factory):
-    path = tmp_path_factory.mktemp("logs") / "head.csv"
-    assert main(["simulate", "head", "--out", str(path), "--n-samples", "5040", "--quiet"]) == 0
-    return path
 
 
 # the defaults before the real-robot ones (a data-chosen cut-off, Coulomb and offset friction,
@@ -98,8 +93,8 @@ def test_identify_end_to_end_smoke(head_csv, tmp_path, capsys):
 def test_output_ard_reaches_the_estimator(head_csv, tmp_path, capsys):
     out = tmp_path / "ard"
     code, _, err = _identify(
-        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--ard", "output",
-        "--input-noise", "periods", "--no-project",
+        capsys, "head", head_csv, "--out", out, "--smoke", "--ard", "output",
+        "--input-noise", "periods", "--no-project", *FAST,
     )  # fmt: skip
     assert code == 0, err
     settings = json.loads((out / "report.json").read_text())["settings"]
@@ -255,15 +250,16 @@ def test_installed_command_help_and_clean_error(tmp_path):
     """The console script is installed, every command has --help, errors carry no traceback."""
     exe = shutil.which("torchjfa")
     cmd = [exe] if exe else [sys.executable, "-m", "torchjfa"]
-    for sub in ([], ["identify"], ["simulate"], ["evaluate"]):
-        res = subprocess.run([*cmd, *sub, "--help"], capture_output=True, text=True, timeout=120)
-        assert res.returncode == 0 and "usage: torchjfa" in res.stdout
-    missing = tmp_path / "nope.csv"
-    res = subprocess.run(
-        [*cmd, "identify", "head", str(missing)], capture_output=True, text=True, timeout=120
-    )
-    assert res.returncode == 2
-    assert "no log file" in res.stderr and "Traceback" not in res.stderr
+    helps = [[*cmd, *sub, "--help"] for sub in ([], ["identify"], ["simulate"], ["evaluate"])]
+    missing = [*cmd, "identify", "head", str(tmp_path / "nope.csv")]
+    # all at once: each spends its time importing torch
+    running = [subprocess.Popen(c, stdout=PIPE, stderr=PIPE, text=True) for c in [*helps, missing]]
+    outputs = [p.communicate(timeout=120) for p in running]
+    for p, (stdout, _) in zip(running[:-1], outputs[:-1], strict=True):
+        assert p.returncode == 0 and "usage: torchjfa" in stdout
+    assert running[-1].returncode == 2
+    stderr = outputs[-1][1]
+    assert "no log file" in stderr and "Traceback" not in stderr
     assert exe is not None, "pip install did not put the torchjfa command on PATH"
 
 

@@ -13,15 +13,14 @@ from torchjfa.identification import cap_period_noise as _cap_period_noise
 from torchjfa.identification import coverage_warnings as _coverage_warnings
 from torchjfa.sim import PeriodNoise, model_path
 
-FAST = ["--quiet", "--estimator", "ols", "--jackknife", "0", "--no-plots"]
+FAST = ["--quiet", "--estimator", "ols", "--jackknife", "0", "--bias-correction", "0", "--no-plots"]
 FAST += ["--cutoff", "20", "--friction", "viscous", "--parametrization", "virtual"]  # as written
 
 
 @pytest.fixture(scope="module")
-def head_log(tmp_path_factory):
-    path = tmp_path_factory.mktemp("logs") / "head.csv"
-    assert main(["simulate", "head", "--out", str(path), "--n-samples", "5040", "--quiet"]) == 0
-    return read_log(path)
+def head_log(head_csv):
+    """The session's simulated head log (`head_csv`), read; tests change copies only."""
+    return read_log(head_csv)
 
 
 def _run(capsys, log, tmp_path, *extra):

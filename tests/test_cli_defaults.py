@@ -11,12 +11,8 @@ from torchjfa.cli import main
 from torchjfa.data import COULOMB_GRID
 from torchjfa.io import read_identified
 
-
-@pytest.fixture(scope="module")
-def head_csv(tmp_path_factory):
-    path = tmp_path_factory.mktemp("logs") / "head.csv"
-    assert main(["simulate", "head", "--out", str(path), "--n-samples", "5040", "--quiet"]) == 0
-    return path
+#: the tests after the first are not about the bias correction: none (20 refits by default)
+NO_SIMEX = ["--bias-correction", "0"]
 
 
 def _identify(capsys, *args):
@@ -32,25 +28,10 @@ def _verdicts(md: str) -> tuple[str, str]:
     return header, table
 
 
-def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
-    head_csv, tmp_path, capsys, monkeypatch
-):
-    import torchjfa.identification._prepare as stages
-
-    seen = []
-    choose = stages.choose_cutoff
-
-    def spy(model, log, **kwargs):
-        seen.append(float(log.t[-1]))
-        return choose(model, log, **kwargs)
-
-    monkeypatch.setattr(stages, "choose_cutoff", spy)
-    out = tmp_path / "r"
-    code, stdout, err = _identify(
-        capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
-        "--no-plots",
-    )  # fmt: skip
-    assert code == 0, err
+def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(default_run):
+    """On the session's default run (tests/conftest.py: every default, the cut-off choice
+    watched), the run the golden report checks number by number."""
+    out = default_run.folder
     report = json.loads((out / "report.json").read_text())
     cutoff = report["settings"]["prepare"]["cutoff_hz"]
     # one of the default grid's cut-offs (2..30 Hz), below the 420 Hz log's Nyquist frequency
@@ -66,11 +47,11 @@ def test_the_defaults_choose_the_cut_off_and_model_coulomb_and_offset(
     # log-Cholesky: fully consistent, and the header says the table's verdict
     assert report["consistent"]
     assert _verdicts(md) == ("yes", "yes")
-    assert "physically consistent: yes" in stdout
+    assert "physically consistent: yes" in default_run.stdout
     # the choice saw none of the held-out part
     with np.load(out / "validation.npz") as z:
         first_held_out = float(z["t"][0])
-    (last_seen,) = seen
+    (last_seen,) = default_run.seen
     assert last_seen < first_held_out
 
 
@@ -78,7 +59,7 @@ def test_the_header_verdict_is_the_tables_with_virtual_parameters(head_csv, tmp_
     out = tmp_path / "v"
     code, stdout, err = _identify(
         capsys, "head", head_csv, "--out", out, "--smoke", "--quiet", "--jackknife", "0",
-        "--no-plots", "--parametrization", "virtual", "--cutoff", "20",
+        "--no-plots", "--parametrization", "virtual", "--cutoff", "20", *NO_SIMEX,
     )  # fmt: skip
     assert code == 0, err
     md = (out / "report.md").read_text()
@@ -93,7 +74,7 @@ def test_a_log_too_short_to_choose_falls_back_with_a_warning(head_csv, tmp_path,
     # the 2 Hz filter need
     code, _, err = _identify(
         capsys, "head", head_csv, "--out", tmp_path / "s", "--max-seconds", "5",
-        "--quiet", "--jackknife", "0", "--no-plots",
+        "--quiet", "--jackknife", "0", "--no-plots", *NO_SIMEX,
     )  # fmt: skip
     assert code == 0, err
     assert "warning: --cutoff auto:" in err and "too short to choose a cut-off" in err

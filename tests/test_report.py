@@ -363,7 +363,9 @@ def test_what_the_data_determine_section(report):
 
 def test_training_rms_says_filtered_and_when_it_is_of_the_weighted_equations():
     """Unweighted, the training residual is the torque's, in N m (by hand from the rows); with
-    joint weights it is that of the weighted equations and says so (not N m)."""
+    joint weights it is that of the weighted equations and says so (not N m). The fits are not
+    projected: the projection is not what this checks (the training error of a projected theta
+    is in tests/identification/test_default_report.py's golden file)."""
     from torchjfa.estimators import OLS
     from torchjfa.report._words import g3
 
@@ -373,7 +375,7 @@ def test_training_rms_says_filtered_and_when_it_is_of_the_weighted_equations():
         t=sim.t, q=sim.q, qd=sim.qd, qdd=sim.qdd, tau=sim.tau, joint_names=sim.joint_names
     )
     train, valid = log.split(0.25)
-    plain = fit_logs(model, train, estimator=OLS(fit_intercept=False))
+    plain = fit_logs(model, train, estimator=OLS(fit_intercept=False), project=False)
     settings = {"prepare": {"cutoff_hz": 20.0}}
     md = make_report(plain, valid, settings=settings).markdown()
     t = train.reorder(model.joint_names)
@@ -381,7 +383,9 @@ def test_training_rms_says_filtered_and_when_it_is_of_the_weighted_equations():
     by_hand = float(res.pow(2).mean().sqrt())
     assert f"- training residual RMS, N m (torque filtered at 20 Hz): {g3(by_hand)}" in md
     weights = torch.linspace(0.5, 2.0, model.n_dof, dtype=torch.float64)
-    weighted = fit_logs(model, train, estimator=OLS(fit_intercept=False), joint_weights=weights)
+    weighted = fit_logs(
+        model, train, estimator=OLS(fit_intercept=False), joint_weights=weights, project=False
+    )
     md = make_report(weighted, valid, settings=settings).markdown()
     assert "- training residual RMS of the weighted equations (torque filtered at 20 Hz" in md
     assert "- joint weights (weighted least squares, mean 1): neck_pan 0.500," in md

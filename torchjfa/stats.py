@@ -16,7 +16,11 @@ import torch
 
 from ._validation import as_tensor, check_finite, check_Xy
 
-__all__ = ["Moments", "kfold_moments"]
+__all__ = ["CHUNK_SIZE", "Moments", "kfold_moments"]
+
+#: samples per chunk where moments are summed chunk by chunk through the regressor (the
+#: default of every ``chunk_size``: memory ``O(chunk * n_dof * n_params)``)
+CHUNK_SIZE = 4096
 
 _FIELDS = ("n", "sum_x", "sum_y", "xtx", "xty", "yty")
 _BLOCK_ROWS = 2048  # rows per block of `Moments.update` (1.2 MB at d = 77: stays in cache)

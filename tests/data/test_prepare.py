@@ -15,7 +15,6 @@ from torchjfa.data import (
     resample,
     transient_periods,
 )
-from torchjfa.sim import generate_log
 
 RATE = 200.0
 PERIOD = 2.5  # s: 500 samples at 200 Hz
@@ -67,8 +66,8 @@ def test_period_of_a_noisy_sum_of_sinusoids_to_a_fraction_of_a_sample():
     assert abs(est - PERIOD) * RATE < 0.01  # in samples
 
 
-def test_period_of_the_simulated_robot_and_none_for_noise():
-    sim = generate_log("head", n_samples=420 * 12, seed=3)
+def test_period_of_the_simulated_robot_and_none_for_noise(head_sim):
+    sim = head_sim  # 12 s at 420 Hz
     est = detect_period(sim.q, sim.control_rate)
     assert est is not None
     assert abs(est * sim.control_rate - sim.period_samples) < 0.05

@@ -53,7 +53,8 @@ def test_simulate_tracks_it_and_identify_reads_the_log(traj_dir, tmp_path, capsy
     # computed-torque tracking (8 Hz bandwidth) of a <= 1.5 Hz motion plus 1e-3 rad sensor noise
     assert float(np.abs(log.q.numpy() - q_ref).max()) < 0.02
     code = main(["identify", "head", str(log_path), "--estimator", "ols", "--out",
-                 str(tmp_path / "result"), "--quiet", "--no-plots", "--jackknife", "0"])  # fmt: skip
+                 str(tmp_path / "result"), "--quiet", "--no-plots", "--jackknife", "0",
+                 "--bias-correction", "0"])  # fmt: skip
     out = capsys.readouterr()
     assert code == 0, out.err
     assert "held-out torque nMSE" in out.out

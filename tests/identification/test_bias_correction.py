@@ -31,6 +31,13 @@ def head():
     return model, true_parameters("head", model)
 
 
+@pytest.fixture(scope="module")
+def log():
+    """A default simulated head log (unmodeled effects, sensor noise), for the tests that need
+    any log (read only)."""
+    return generate_log("head", n_samples=1500, seed=2)
+
+
 def _identify(model, log, **options):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", IdentificationWarning)
@@ -65,9 +72,8 @@ def test_the_correction_moves_the_estimate_toward_the_truth(head, seed):
     assert "- bias correction: SIMEX, 10 refits" in ident.report.markdown()
 
 
-def test_correct_bias_shifts_the_estimate_and_the_jackknife_and_the_projection_follows(head):
+def test_correct_bias_shifts_the_estimate_and_the_jackknife_and_the_projection_follows(head, log):
     model, _ = head
-    log = generate_log("head", n_samples=1500, seed=2)
     options = Options(
         weighting="none", jackknife=4, bias_correction=0, parametrization="virtual",
         description_prior=None,
@@ -92,9 +98,10 @@ def test_correct_bias_shifts_the_estimate_and_the_jackknife_and_the_projection_f
         correct_bias(result, bias=bias)
 
 
-def test_without_a_readable_noise_the_estimate_stays_uncorrected_with_a_warning(head, monkeypatch):
+def test_without_a_readable_noise_the_estimate_stays_uncorrected_with_a_warning(
+    head, log, monkeypatch
+):
     model, _ = head
-    log = generate_log("head", n_samples=1500, seed=5)
 
     def unreadable(*args, **kwargs):
         raise LogError("the spectrum of tau does not flatten below the Nyquist frequency")

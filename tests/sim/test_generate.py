@@ -197,10 +197,10 @@ def test_noise_from_repeated_periods_recovers_injected_noise():
         regressor_noise(model, generate_log("head", n_samples=100, seed=0))
 
 
-def test_regressor_noise_with_joint_weights_is_that_of_the_weighted_rows():
+def test_regressor_noise_with_joint_weights_is_that_of_the_weighted_rows(head_sim):
 
     model = RigidBodyModel.from_mjcf(model_path("head"))
-    log = generate_log("head", n_samples=3 * 1680, seed=2)
+    log = head_sim  # three periods of 1680 samples
     plain = regressor_noise(model, log)
     torch.testing.assert_close(
         regressor_noise(model, log, joint_weights=torch.ones(7, dtype=torch.float64)).input_noise,

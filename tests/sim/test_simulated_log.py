@@ -109,13 +109,13 @@ def _fields(log):
     return {f.name: getattr(log, f.name) for f in dataclasses.fields(log)}
 
 
-def test_period_noise_of_a_simulated_log_and_of_its_plain_joint_log():
+def test_period_noise_of_a_simulated_log_and_of_its_plain_joint_log(head_sim):
     """Two code paths, one answer: the noise does not need the ground truth."""
     from torchjfa.dynamics import RigidBodyModel
     from torchjfa.sim import model_path
 
     model = RigidBodyModel.from_mjcf(model_path("head"))
-    log = generate_log("head", n_samples=3 * 1680, seed=1)
+    log = head_sim  # three periods of 1680 samples
     plain = JointLog(
         t=log.t, q=log.q, qd=log.qd, qdd=log.qdd, tau=log.tau, joint_names=log.joint_names,
         period_samples=log.period_samples,

@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from .._validation import check_joint_weights
+from ..stats import CHUNK_SIZE
 from ._differentiate import DEFAULT_CUTOFF_HZ, edge_seconds
 from ._joints import permutation
 from ._log import JointLog
@@ -87,7 +88,7 @@ def propagated_noise(
     samples: int | None = None,
     n_draws: int = 8,
     seed: int = 0,
-    chunk_size: int = 4096,
+    chunk_size: int = CHUNK_SIZE,
     compiled: bool | None = None,
 ) -> PropagatedNoise:
     """The input noise of every regressor column and the torque noise, for any log.

@@ -18,7 +18,7 @@ import torch
 
 from .._util import note, progress_bar, single_thread
 from .._validation import as_tensor
-from ..stats import Moments
+from ..stats import CHUNK_SIZE, Moments
 from ._inputs import check_chunk, check_out, check_state, new_output
 from ._kernel import RegressorKernel
 from ._kinematics import FrameKinematics
@@ -405,7 +405,7 @@ class RigidBodyModel(FrameKinematics):
         return Y @ theta
 
     def regressor_chunks(
-        self, q, qd, qdd, tau, *, chunk_size: int = 4096, compiled: bool | None = None
+        self, q, qd, qdd, tau, *, chunk_size: int = CHUNK_SIZE, compiled: bool | None = None
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """Stream the stacked regression rows, ``chunk_size`` samples at a time.
 
@@ -437,7 +437,7 @@ class RigidBodyModel(FrameKinematics):
         qdd,
         tau,
         *,
-        chunk_size: int = 4096,
+        chunk_size: int = CHUNK_SIZE,
         progress: bool = False,
         compiled: bool | None = None,
     ) -> Moments:

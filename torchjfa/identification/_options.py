@@ -17,6 +17,7 @@ import torch
 from ..data import COULOMB_GRID, DEFAULT_CUTOFF_HZ
 from ..dynamics import FRICTION_KINDS, read_transmission
 from ..physical import DEFAULT_PARAMETRIZATION
+from ..stats import CHUNK_SIZE
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
 from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
@@ -131,7 +132,7 @@ class Compute:
     """
 
     chunk_size: int = option(
-        4096, group="compute", help="samples per regressor chunk (memory grows with it)"
+        CHUNK_SIZE, group="compute", help="samples per regressor chunk (memory grows with it)"
     )
     device: torch.device | str | None = option(
         None, group="compute", parse=str, help="where to compute, e.g. cuda (default: CPU)"

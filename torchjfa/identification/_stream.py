@@ -21,7 +21,7 @@ from .._validation import check_finite, check_joint_weights
 from ..data import log_sources
 from ..distributed import all_reduce_moments, rank_and_world_size, shard_range
 from ..dynamics import RigidBodyModel
-from ..stats import Moments
+from ..stats import CHUNK_SIZE, Moments
 
 __all__ = [
     "JOINT_WEIGHT_FLOOR",
@@ -74,7 +74,7 @@ def stream_moments(
     model: RigidBodyModel,
     logs,
     *,
-    chunk_size: int = 4096,
+    chunk_size: int = CHUNK_SIZE,
     n_folds: int | None = None,
     distributed: bool = False,
     group=None,
@@ -185,7 +185,7 @@ def residual_joint_weights(
     logs,
     *,
     floor: float = JOINT_WEIGHT_FLOOR,
-    chunk_size: int = 4096,
+    chunk_size: int = CHUNK_SIZE,
     **kwargs,
 ) -> torch.Tensor:
     """Per-joint weights ``1 / sigma_j^2`` for weighted least squares, scaled to mean 1.
