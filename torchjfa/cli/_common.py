@@ -19,6 +19,7 @@ from ..identification._options import (
 )
 
 __all__ = [
+    "COMMANDS",
     "Parser",
     "UsageError",
     "add_option",
@@ -34,6 +35,18 @@ __all__ = [
 
 #: bad input from the user: printed as one line, exit status 2 (the flow's own error)
 UsageError = IdentificationError
+
+#: the sub-commands, in the order ``torchjfa --help`` lists them: name -> one-line help (each
+#: sub-command's parser takes its help from here)
+COMMANDS = {
+    "identify": "identify a robot's parameters from its logs and write a report",
+    "simulate": "simulate a robot tracking an excitation and write its log",
+    "excite": "design an optimal excitation trajectory for identification",
+    "evaluate": "evaluate an identified model on logs (or on a simulated robot)",
+    "payload": "identify a payload fixed to a link from loaded logs",
+    "refine": "refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
+    "residual": "train residual dynamics with Lightning (fit, validate, test, predict)",
+}
 
 
 class HelpFormatter(argparse.HelpFormatter):

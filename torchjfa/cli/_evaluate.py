@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
-from ._common import UsageError, add_reading, default_of, reading, usage
+from ._common import COMMANDS, UsageError, add_reading, default_of, reading, usage
 from ._simulate import add_simulation_options, simulated_robot
 
 __all__ = ["add_evaluate", "cmd_evaluate"]
@@ -24,7 +23,7 @@ def add_evaluate(sub) -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "evaluate",
-        help="evaluate an identified model on logs (or on a simulated robot)",
+        help=COMMANDS["evaluate"],
         description="Judge an identified model on logs it was not identified from: each log "
         "read as identify reads it, its rest at the ends dropped, prepared at the model's own "
         "cut-off (or --cutoff), and the predicted torques compared with the measured, "
@@ -114,15 +113,10 @@ def _evaluate_logs(args) -> int:
 def _evaluate_simulated(args) -> int:
     """``torchjfa evaluate MODEL --robot ROBOT``: the torques of a fresh noiseless trajectory
     of the simulated robot, and computed-torque control with the model in MuJoCo."""
-    from ..io import read_identified
+    from ..identification._prepare import identified_model
     from ..sim import evaluate_simulated
 
-    if not os.path.isfile(args.model):
-        raise UsageError(f"no model file {args.model!r}")
-    try:
-        ident = read_identified(args.model)
-    except ValueError as exc:  # not a model file, or a damaged one: the message says which
-        raise UsageError(str(exc)) from None
+    ident = identified_model(args.model)
     robot = simulated_robot(args)
     try:
         found = evaluate_simulated(

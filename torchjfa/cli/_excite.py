@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import functools
 
-from ._common import command_line, default_of, friction_terms, load_model, numbers, usage
+from ._common import COMMANDS, command_line, default_of, friction_terms, load_model, numbers, usage
 
 __all__ = ["add_excite", "cmd_excite"]
 
@@ -36,7 +36,7 @@ def add_excite(subparsers) -> argparse.ArgumentParser:
     limit = functools.partial(default_of, limits_from_model)
     p = subparsers.add_parser(
         "excite",
-        help="design an optimal excitation trajectory for identification",
+        help=COMMANDS["excite"],
         description="Optimise a periodic Fourier-series trajectory (at rest at a posture at the "
         "start of every period) for the identification of a robot: D-optimality (or the "
         "condition number, or E-optimality) of the base-parameter information matrix, through "

@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from ..identification._options import GROUPS, Compute, Options, cli_fields
-from ._common import UsageError, add_option, command_line
+from ._common import COMMANDS, UsageError, add_option, command_line
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
@@ -89,7 +89,7 @@ def add_identify(sub) -> argparse.ArgumentParser:
     parser); returns its parser, which runs `cmd_identify`."""
     p = sub.add_parser(
         "identify",
-        help="identify a robot's parameters from its logs and write a report",
+        help=COMMANDS["identify"],
         description="Read joint logs (CSV, NPZ, Parquet, ROS bags), drop the standing still at "
         "their ends, filter and differentiate each, identify the rigid-body and friction "
         "parameters from all of them, project them onto physically consistent ones, and write "

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from importlib import import_module
 
 from ..estimators import available as _estimators
-from ._common import Parser, UsageError
+from ._common import COMMANDS, Parser, UsageError
 
 __all__ = ["COMMANDS", "ESTIMATORS", "build_parser", "main"]
 
@@ -18,7 +19,7 @@ def _add_residual(sub) -> argparse.ArgumentParser:
     command line (`torchjfa.cli._residual`), which has its own ``--help``."""
     p = sub.add_parser(
         "residual",
-        help="train residual dynamics with Lightning (fit, validate, test, predict)",
+        help=COMMANDS["residual"],
         description="Train a residual model on top of an identified one with Lightning: "
         "torchjfa residual fit --config torchjfa/learning/configs/head_residual.yaml "
         "(torchjfa residual --help lists every option).",
@@ -36,39 +37,10 @@ def _cmd_residual(args) -> int:
     return 0
 
 
-def _adders():
-    """Sub-command name -> the function that adds its parser (imported only when needed: the
-    parsers read the library's defaults, and ``excite``'s and ``simulate``'s import MuJoCo)."""
-
-    def lazy(module: str, name: str):
-        def add(sub):
-            from importlib import import_module
-
-            return getattr(import_module(f"torchjfa.cli.{module}"), name)(sub)
-
-        return add
-
-    return {
-        "identify": lazy("_identify", "add_identify"),
-        "simulate": lazy("_simulate", "add_simulate"),
-        "excite": lazy("_excite", "add_excite"),
-        "evaluate": lazy("_evaluate", "add_evaluate"),
-        "payload": lazy("_payload", "add_payload"),
-        "refine": lazy("_refine", "add_refine"),
-        "residual": _add_residual,
-    }
-
-
-#: the sub-commands, in the order ``torchjfa --help`` lists them: name -> one-line help
-COMMANDS = {
-    "identify": "identify a robot's parameters from its logs and write a report",
-    "simulate": "simulate a robot tracking an excitation and write its log",
-    "excite": "design an optimal excitation trajectory for identification",
-    "evaluate": "evaluate an identified model on logs (or on a simulated robot)",
-    "payload": "identify a payload fixed to a link from loaded logs",
-    "refine": "refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
-    "residual": "train residual dynamics with Lightning (fit, validate, test, predict)",
-}
+#: sub-command -> (module, function) adding its parser, imported only when needed: the
+#: parsers read the library's defaults, and ``excite``'s and ``simulate``'s import MuJoCo
+_PARSERS = {name: (f"torchjfa.cli._{name}", f"add_{name}") for name in COMMANDS}
+_PARSERS["residual"] = (__name__, "_add_residual")  # its module imports Lightning
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -85,10 +57,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    adders = _adders()
     for name, text in COMMANDS.items():
         if command is None or name == command:
-            adders[name](sub)
+            module, function = _PARSERS[name]
+            getattr(import_module(module), function)(sub)
         else:
             sub.add_parser(name, help=text)
     return parser

@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from ._common import UsageError, add_reading, reading
+from ._common import COMMANDS, UsageError, add_reading, reading
 
 __all__ = ["add_payload", "cmd_payload"]
 
@@ -24,7 +24,7 @@ def add_payload(sub) -> argparse.ArgumentParser:
     """The ``payload`` sub-command's parser (runs `cmd_payload`)."""
     p = sub.add_parser(
         "payload",
-        help="identify a payload fixed to a link from loaded logs",
+        help=COMMANDS["payload"],
         description="The mass, centre of mass and inertia of a rigid body fixed to a link, from "
         "logs with it mounted and the identified robot (model.npz), or from loaded and "
         "unloaded runs together (--unloaded: the robot's parameters are fitted again, so what "

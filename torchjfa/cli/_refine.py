@@ -10,7 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ._common import UsageError, add_reading, reading
+from ._common import COMMANDS, UsageError, add_reading, reading
 
 __all__ = ["add_refine", "cmd_refine"]
 
@@ -19,7 +19,7 @@ def add_refine(sub) -> argparse.ArgumentParser:
     """The ``refine`` sub-command's parser (runs `cmd_refine`)."""
     p = sub.add_parser(
         "refine",
-        help="refine friction loss, damping and armature on MuJoCo rollouts (mujoco.sysid)",
+        help=COMMANDS["refine"],
         description="Start from the identified model's MJCF export and fit, per joint, MuJoCo's "
         "friction loss, damping and armature (and with --delay one delay between the logged "
         "torque and the joints) to open-loop rollouts on the training logs, with mujoco.sysid; "
@@ -45,15 +45,11 @@ def add_refine(sub) -> argparse.ArgumentParser:
 
 def cmd_refine(args) -> int:
     """Run ``torchjfa refine`` (see `add_refine`)."""
-    from ..identification._prepare import read_prepared, several
-    from ..io import read_identified
+    from ..identification._prepare import identified_model, read_prepared, several
     from ..sim import refine
 
-    try:
-        ident = read_identified(args.model)
-    except (OSError, ValueError) as exc:  # no file, not a model file, or a damaged one
-        raise UsageError(str(exc)) from None
-    model, theta, cutoff = ident.model, ident.theta.double(), ident.cutoff_hz
+    ident = identified_model(args.model)
+    model, theta, cutoff = ident.model, ident.theta, ident.cutoff_hz
     options = reading(args)
 
     def prepared(logs):

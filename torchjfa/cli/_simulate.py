@@ -15,7 +15,7 @@ import zipfile
 from pathlib import Path
 
 from ..robots import SIMULATED
-from ._common import UsageError, default_of, numbers, usage
+from ._common import COMMANDS, UsageError, default_of, numbers, usage
 
 __all__ = ["add_simulate", "add_simulation_options", "cmd_simulate", "simulated_robot"]
 
@@ -62,7 +62,7 @@ def add_simulate(sub) -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "simulate",
-        help="simulate a robot tracking an excitation and write its log",
+        help=COMMANDS["simulate"],
         description="Simulate a robot in MuJoCo tracking a trajectory under computed-torque "
         "control, with sensor noise, and write a log as a real robot would give it: t, "
         "q_<joint>, qd_<joint>, tau_<joint> (no accelerations). The robot is the Sarcos-like "

@@ -11,6 +11,7 @@ physical units, against the random excitation's) and the figures.
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 from dataclasses import dataclass
@@ -157,9 +158,15 @@ def design_excitation(
     """
     res = optimize_excitation(model, limits, rate=rate, **options)
     traj = res.trajectory
+    # what was optimised: the options given over `optimize_excitation`'s own defaults
+    chosen = {
+        name: p.default
+        for name, p in inspect.signature(optimize_excitation).parameters.items()
+        if p.default is not inspect.Parameter.empty
+    } | options
     rnd = random_excitation(
         model, limits, base_frequency=traj.base_frequency, harmonics=traj.harmonics, rate=rate,
-        seed=options.get("seed", 0), posture=traj.posture,
+        seed=chosen["seed"], posture=traj.posture,
     )  # fmt: skip
     geometry = trajectory_geometry(model, rnd, limits)
     margins = {
@@ -167,15 +174,14 @@ def design_excitation(
                                  geometry=geometry),
         "physical": physical_margins(model, rnd, limits, rate=rate, geometry=geometry),
     }  # fmt: skip
-    n_info = max(options.get("n_grid", 200), 1000)
+    n_info = max(chosen["n_grid"], 1000)
     info = {
         "optimised": trajectory_information(model, traj, res.basis, n_grid=n_info),
         "random": trajectory_information(model, rnd, res.basis, n_grid=n_info),
     }
-    duration = options.get("duration", traj.period)
     return ExcitationDesign(
-        robot, model, res, rnd, margins, info, float(duration), float(rate),
-        options.get("payload"),
+        robot, model, res, rnd, margins, info, float(chosen["duration"]), float(rate),
+        chosen["payload"],
     )  # fmt: skip
 
 

@@ -21,6 +21,7 @@ from .._validation import check_finite, check_joint_weights
 from ..data import log_sources
 from ..distributed import all_reduce_moments, rank_and_world_size, shard_range
 from ..dynamics import RigidBodyModel
+from ..estimators import OLS
 from ..stats import CHUNK_SIZE, Moments
 
 __all__ = [
@@ -227,8 +228,6 @@ def joint_weights(parts: Sequence[Moments], *, floor: float = JOINT_WEIGHT_FLOOR
     Returns:
         ``(n_dof,)`` float64 weights on the moments' device.
     """
-    from ..estimators import OLS
-
     total = sum(parts[1:], parts[0].copy())
     theta = OLS(fit_intercept=False).fit_moments(total).coef_
     var = torch.stack([m.rss(theta).clamp_min(0.0) / m.n for m in parts])
