@@ -82,7 +82,7 @@ def excitation(robot: str, seed: int, period_s: float):
     )
 
 
-def one_seed(robot, model, theta, seed, *, n_samples, n_test, period_s) -> dict:
+def one_seed(robot, model, theta, seed, *, n_samples, n_test, period_s, jackknife) -> dict:
     """Per run: held-out nMSE, base-parameter error, the input noise mode, seconds."""
     log = generate_log(
         robot,
@@ -106,7 +106,7 @@ def one_seed(robot, model, theta, seed, *, n_samples, n_test, period_s) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentificationWarning)
             # no description prior: in simulation the description IS the truth
-            opts = Options(cutoff=cutoff, description_prior=None, **kw)
+            opts = Options(cutoff=cutoff, description_prior=None, jackknife=jackknife, **kw)
             ident = torchjfa.identify(model, log, opts)
         cutoff = ident.data.cutoff_hz
         base = ident.report.base
@@ -125,14 +125,31 @@ def one_seed(robot, model, theta, seed, *, n_samples, n_test, period_s) -> dict:
     return out
 
 
-def run(robots=("head", "arm"), seeds=(0, 1, 2), *, n_samples=8000, n_test=4000, period_s=60.0):
+def run(
+    robots=("head", "arm"),
+    seeds=(0, 1, 2),
+    *,
+    n_samples=8000,
+    n_test=4000,
+    period_s=60.0,
+    jackknife=Options.jackknife,
+):
+    """Per robot and seed: `one_seed` (``jackknife``: its blocks; the spreads weigh the
+    projection)."""
     rows = {}
     for robot in robots:
         model, theta = truth(robot)
         rows[robot] = {
             s: one_seed(
-                robot, model, theta, s, n_samples=n_samples, n_test=n_test, period_s=period_s
-            )
+                robot,
+                model,
+                theta,
+                s,
+                n_samples=n_samples,
+                n_test=n_test,
+                period_s=period_s,
+                jackknife=jackknife,
+            )  # fmt: skip
             for s in seeds
         }
     return rows
@@ -177,7 +194,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
     ap.add_argument("--samples", type=int, default=8000, help="samples per log")
     ap.add_argument("--period", type=float, default=60.0, help="excitation period, s")
-    ap.add_argument("--smoke", action="store_true", help="head, one seed, 1500 samples")
+    ap.add_argument(
+        "--smoke", action="store_true", help="head, one seed, 1500 samples, 5 jackknife blocks"
+    )
     return page.add_option(ap)
 
 
@@ -192,15 +211,16 @@ def main(argv=None) -> dict:
 def _main(args) -> dict:
     """Run and print what ``args`` ask for."""
     robots = tuple(args.robots.split(","))
-    n_test = 4000
+    n_test, jackknife = 4000, Options.jackknife
     if args.smoke:
-        robots, args.seeds, args.samples, n_test = ("head",), 1, 1500, 500
+        robots, args.seeds, args.samples, n_test, jackknife = ("head",), 1, 1500, 500, 5
     rows = run(
         robots,
         tuple(range(args.seeds)),
         n_samples=args.samples,
         n_test=n_test,
         period_s=args.period,
+        jackknife=jackknife,
     )
     out = {}
     for robot, per_seed in rows.items():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import os
 from types import SimpleNamespace
 
 import pytest
@@ -71,3 +72,14 @@ def head_sim():
     from torchjfa.sim import generate_log
 
     return generate_log("head", n_samples=5040, seed=0)
+
+
+def pytest_configure(config):
+    """Under ``pytest -n N`` (the default: one worker per core), each worker runs torch on one
+    thread, and so do the processes its tests start: N workers with torch's default threads each
+    would put N times the cores' worth of spinning threads on the machine."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import torch
+
+        os.environ["OMP_NUM_THREADS"] = "1"
+        torch.set_num_threads(1)
