@@ -1,4 +1,4 @@
-"""Saving and loading identified rigid-body models.
+"""Saving and loading identified rigid-body models, and results written whole.
 
 One call writes everything needed to rebuild an identified model anywhere, one call reads it back
 into a ready `torchjfa.dynamics.InverseDynamics`:
@@ -37,11 +37,16 @@ filtered at when the model was identified (`torchjfa identify` stores it), which
 The same content as a dictionary of tensors and Python values (`identified_to_dict`,
 `identified_from_dict`) is what `torchjfa.learning` stores inside its Lightning checkpoints, so
 that those load with ``torch.load(..., weights_only=True)``.
+
+Every file and folder the library writes is written whole or not at all (`atomic_file`,
+`output_folder`): a run killed at any moment leaves the earlier result as it was or the new one
+complete, never a mix. A result folder ends with ``manifest.json`` (the library's version, the
+command, each input's and each file's SHA-256); a folder holding other files is not replaced
+unless asked (``overwrite``), and a second run writing the same folder meanwhile is refused.
 """
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import math
 import os
@@ -51,6 +56,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ._util import MANIFEST, OutputError, atomic_file, check_output, output_folder
+from ._util import library_version as _library_version
 from .data import DEFAULT_CUTOFF_HZ
 from .dynamics import InverseDynamics, RigidBodyModel
 
@@ -61,6 +68,11 @@ __all__ = [
     "load_identified",
     "identified_to_dict",
     "identified_from_dict",
+    "output_folder",
+    "atomic_file",
+    "check_output",
+    "OutputError",
+    "MANIFEST",
 ]
 
 _FORMAT = "torchjfa.IdentifiedModel"
@@ -70,15 +82,6 @@ _REQUIRED = frozenset(
     ("format", "version", "library_version", "source_format", "source_path", "source_xml")
     + ("gravity", "friction", "joint_names", "parameter_names", "theta")
 )
-
-
-def _library_version() -> str:
-    """The installed torchjfa's version (its distribution's metadata, as ``pip`` has it), or
-    ``"unknown"`` when it runs from a source tree that was never installed."""
-    try:
-        return importlib.metadata.version("torchjfa")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 @dataclass
@@ -265,8 +268,12 @@ def save_identified(path: str | os.PathLike, model, theta=None, **extras) -> Non
         **extras: numbers, arrays or strings to keep with the model, e.g. noise estimates
             ``input_noise=(n_params,)``, ``output_noise=()`` (N^2 m^2), ``estimator="BayesianJFA"``.
 
+    The file is written whole or not at all: a run killed while writing leaves the earlier
+    file (if any) as it was.
+
     Raises:
         TypeError, ValueError: as `identified_to_dict`.
+        torchjfa.io.OutputError: ``path`` is a folder or a symbolic link.
     """
     data = identified_to_dict(model, theta, **extras)
     arrays: dict[str, np.ndarray] = {}
@@ -283,7 +290,7 @@ def save_identified(path: str | os.PathLike, model, theta=None, **extras) -> Non
             arrays[key] = np.array(value)
     for key, value in data["extras"].items():
         arrays[_EXTRA + key] = np.array(value) if isinstance(value, str) else value.numpy()
-    with open(os.fspath(path), "wb") as fh:
+    with atomic_file(path) as tmp, open(tmp, "wb") as fh:  # whole, or the earlier file kept
         np.savez_compressed(fh, **arrays)
 
 

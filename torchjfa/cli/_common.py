@@ -1,14 +1,18 @@
 """What every sub-command shares: the parser class that shows defaults, the one-line usage
 error, the flags generated from `torchjfa.identification.Options`, the library's defaults read
-from its signatures, and small argument types."""
+from its signatures, small argument types, and the ``--out`` every writing command takes."""
 
 from __future__ import annotations
 
 import argparse
 import inspect
+import os
 import shlex
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import MISSING, Field
 
+from .._util import OutputError, check_output, output_lock
 from ..identification._options import (
     GROUPS,
     IdentificationError,
@@ -23,10 +27,13 @@ __all__ = [
     "Parser",
     "UsageError",
     "add_option",
+    "add_output",
+    "claimed_output",
     "add_reading",
     "command_line",
     "default_of",
     "friction_terms",
+    "input_files",
     "load_model",
     "numbers",
     "reading",
@@ -99,6 +106,48 @@ def usage(exc: Exception) -> UsageError:
 def command_line(args) -> str:
     """The command as the user typed it (for reports)."""
     return "torchjfa " + " ".join(shlex.quote(a) for a in getattr(args, "argv", []))
+
+
+def add_output(p: argparse.ArgumentParser, *, default: str, what: str) -> None:
+    """``--out`` (a result folder, written whole: `torchjfa.io.output_folder`) and
+    ``--overwrite``; `claimed_output` holds the folder for the command's whole run."""
+    p.add_argument(
+        "--out",
+        default=default,
+        help=f"output folder ({what}); written whole when the command ends, its earlier files "
+        "replaced together",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even where it holds files torchjfa did not write (they are deleted)",
+    )
+    p.set_defaults(output="folder")
+
+
+def input_files(*paths: str | None) -> list[str]:
+    """The arguments that name files or folders on disk (a shipped robot's name is not one),
+    for a result's manifest."""
+    return [p for p in paths if p and os.path.exists(p)]
+
+
+@contextmanager
+def claimed_output(args) -> Iterator[None]:
+    """Check ``args.out`` before any work (a file where a folder belongs, a symbolic link, a
+    folder of other files without ``--overwrite``) and, for a folder, hold its lock until the
+    command ends, so that a second run into it is refused at once, not after its work."""
+    kind = getattr(args, "output", None)
+    with ExitStack() as stack:
+        if kind is not None:
+            try:
+                check_output(
+                    args.out, folder=kind == "folder", overwrite=getattr(args, "overwrite", False)
+                )
+                if kind == "folder":
+                    stack.enter_context(output_lock(args.out))
+            except OutputError as exc:
+                raise UsageError(f"--out: {exc}") from None
+        yield
 
 
 def numbers(text: str) -> tuple[float, ...]:

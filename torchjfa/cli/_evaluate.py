@@ -11,7 +11,17 @@ import argparse
 import json
 from pathlib import Path
 
-from ._common import COMMANDS, UsageError, add_reading, default_of, reading, usage
+from ._common import (
+    COMMANDS,
+    UsageError,
+    add_output,
+    add_reading,
+    command_line,
+    default_of,
+    input_files,
+    reading,
+    usage,
+)
 from ._simulate import add_simulation_options, simulated_robot
 
 __all__ = ["add_evaluate", "cmd_evaluate"]
@@ -37,7 +47,7 @@ def add_evaluate(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "logs", nargs="*", metavar="LOG", help="logs to judge the model on (as identify reads)"
     )
-    p.add_argument("--out", default="evaluation", help="output folder (with logs)")
+    add_output(p, default="evaluation", what="with logs: the errors and figures")
     p.add_argument(
         "--cutoff",
         type=float,
@@ -102,7 +112,13 @@ def _evaluate_logs(args) -> int:
     )
     for line in ev.lines():
         print(line)
-    paths = ev.write(args.out, plots=not args.no_plots)
+    paths = ev.write(
+        args.out,
+        plots=not args.no_plots,
+        overwrite=args.overwrite,
+        inputs=input_files(args.model, *args.logs),
+        command=command_line(args),
+    )
     print(
         f"{len(ev.logs)} log(s), prepared at {ev.cutoff_hz:g} Hz, judged against the measured "
         f"torque (unfiltered); written: {paths['json']}"

@@ -10,7 +10,17 @@ from __future__ import annotations
 import argparse
 import functools
 
-from ._common import COMMANDS, command_line, default_of, friction_terms, load_model, numbers, usage
+from ._common import (
+    COMMANDS,
+    add_output,
+    command_line,
+    default_of,
+    friction_terms,
+    input_files,
+    load_model,
+    numbers,
+    usage,
+)
 
 __all__ = ["add_excite", "cmd_excite"]
 
@@ -55,7 +65,7 @@ def add_excite(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "robot", help="URDF or MJCF file, or a shipped robot: panda, panda_arm, head, arm, ..."
     )
-    p.add_argument("--out", default="traj", help="output folder")
+    add_output(p, default="traj", what="the trajectory, its report and figures")
     p.add_argument(
         "--duration", type=float, default=design("duration"), help="s; whole periods of 1/base-freq"
     )
@@ -192,7 +202,13 @@ def cmd_excite(args) -> int:
     except ValueError as exc:  # bad options or limits that cannot be met
         raise usage(exc) from None
     out = args.out
-    design.write(out, plots=not args.no_plots, command=command_line(args))
+    design.write(
+        out,
+        plots=not args.no_plots,
+        command=command_line(args),
+        overwrite=args.overwrite,
+        inputs=input_files(args.robot),
+    )
     print(design.headline())
     print(f"wrote {out}/trajectory.npz, trajectory.csv, coefficients.json, report.md")
     return 0

@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from ..identification._options import GROUPS, Compute, Options, cli_fields
-from ._common import COMMANDS, UsageError, add_option, command_line
+from ._common import COMMANDS, UsageError, add_option, add_output, command_line, input_files
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
@@ -65,7 +65,14 @@ def cmd_identify(args) -> int:
             validation_log=args.validation_log,
             settings={"command": command},
         )
-    paths = ident.write(args.out, plots=not args.no_plots, appendix=args.appendix)
+    paths = ident.write(
+        args.out,
+        plots=not args.no_plots,
+        appendix=args.appendix,
+        overwrite=args.overwrite,
+        inputs=input_files(args.robot, *args.log, *(args.validation_log or ())),
+        command=command,
+    )
     for line in ident.headline():
         print(line)
     est = ident.result.estimator
@@ -107,7 +114,7 @@ def add_identify(sub) -> argparse.ArgumentParser:
         "q_<joint>, [qd_<joint>], tau_<joint> (or motor currents i_<joint> with "
         "--drive-gains), or ROS bags (.bag, .mcap, .db3, a bag folder)",
     )
-    p.add_argument("--out", default="result", help="output folder")
+    add_output(p, default="result", what="the report, the model, its description and figures")
     p.add_argument(
         "--validation-log",
         nargs="+",

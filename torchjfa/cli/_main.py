@@ -6,8 +6,9 @@ import argparse
 import sys
 from importlib import import_module
 
+from .._util import OutputError
 from ..estimators import available as _estimators
-from ._common import COMMANDS, Parser, UsageError
+from ._common import COMMANDS, Parser, UsageError, claimed_output
 
 __all__ = ["COMMANDS", "ESTIMATORS", "build_parser", "main"]
 
@@ -75,11 +76,12 @@ def _command(argv: list[str]) -> str | None:
 
 
 def main(argv=None) -> int:
-    """Run the command line; returns the exit status (0 ok, 2 bad input).
+    """Run the command line; returns the exit status (0 ok, 2 bad input, 130 interrupted).
 
     Bad input (a missing column, an unknown joint, NaN rows, time going backwards, too few
     samples, a robot file that does not parse) ends with one line on stderr and exit status 2,
-    not a traceback; ``--debug`` shows the traceback.
+    not a traceback; ``--debug`` shows the traceback. So does an ``--out`` the command will not
+    write (checked before any work), and Ctrl-C ends with one line, leaving ``--out`` as it was.
     """
     from ..data import LogError
 
@@ -88,12 +90,19 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.argv = argv
     try:
-        return int(args.func(args) or 0)
-    except (UsageError, LogError, FileNotFoundError) as exc:
+        with claimed_output(args):
+            return int(args.func(args) or 0)
+    except (UsageError, LogError, OutputError, FileNotFoundError) as exc:
         if args.debug:
             raise
         print(f"torchjfa {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        left = f"; {args.out} is as it was" if getattr(args, "output", None) else ""
+        print(f"torchjfa {args.command}: interrupted{left}", file=sys.stderr)
+        return 130
 
 
 def entry() -> None:

@@ -12,7 +12,16 @@ import json
 import sys
 from pathlib import Path
 
-from ._common import COMMANDS, UsageError, add_reading, reading
+from ..io import output_folder
+from ._common import (
+    COMMANDS,
+    UsageError,
+    add_output,
+    add_reading,
+    command_line,
+    input_files,
+    reading,
+)
 
 __all__ = ["add_payload", "cmd_payload"]
 
@@ -50,7 +59,7 @@ def add_payload(sub) -> argparse.ArgumentParser:
         help="the region of the link's frame the payload lies in, metres: sphere:R (about the "
         "link's origin), sphere:X,Y,Z,R or box:XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
     )
-    p.add_argument("--out", default="payload", help="output folder")
+    add_output(p, default="payload", what="the payload or the drive gains, and the description")
     add_reading(p, *FIT_OPTIONS)
     p.set_defaults(func=cmd_payload)
     return p
@@ -71,19 +80,29 @@ def cmd_payload(args) -> int:
         options=reading(args, *FIT_OPTIONS),
         bounds=args.bounds,
     )
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
-    (out / "payload.md").write_text(payload.markdown())
-    described = None
-    try:
-        described = write_with_payload(args.model, payload, out)
-    except (UsageError, ValueError) as exc:
-        print(f"warning: the description with the payload was not written: {exc}", file=sys.stderr)
+    out, described = Path(args.out), None
+    with _folder(args) as stage:
+        (stage / "payload.json").write_text(json.dumps(payload.summary(), indent=1))
+        (stage / "payload.md").write_text(payload.markdown())
+        try:
+            described = out / write_with_payload(args.model, payload, stage).name
+        except (UsageError, ValueError) as exc:
+            print(f"warning: the description with the payload was not written: {exc}",
+                  file=sys.stderr)  # fmt: skip
     print(payload.markdown(brief=True))
     print(f"written: {out / 'payload.json'}, {out / 'payload.md'}"
           + (f", {described}" if described is not None else ""))  # fmt: skip
     return 0
+
+
+def _folder(args):
+    """``--out`` written as one unit (`torchjfa.io.output_folder`)."""
+    return output_folder(
+        args.out,
+        overwrite=args.overwrite,
+        inputs=input_files(args.model, *args.loaded, *(args.unloaded or ())),
+        command=command_line(args),
+    )
 
 
 def _drive_gains(args) -> int:
@@ -97,8 +116,8 @@ def _drive_gains(args) -> int:
         options=reading(args, *FIT_OPTIONS),
     )  # fmt: skip
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "drive_gains.json").write_text(json.dumps(found.summary(), indent=1))
+    with _folder(args) as stage:
+        (stage / "drive_gains.json").write_text(json.dumps(found.summary(), indent=1))
     print(f"drive gains from a {args.mass:g} kg payload on {args.link} (spreads: jackknife):")
     print(found.table())
     gains = ",".join(f"{g:.6g}" for g in found.gains.tolist())

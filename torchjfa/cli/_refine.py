@@ -10,7 +10,16 @@ import argparse
 import json
 from pathlib import Path
 
-from ._common import COMMANDS, UsageError, add_reading, reading
+from ..io import output_folder
+from ._common import (
+    COMMANDS,
+    UsageError,
+    add_output,
+    add_reading,
+    command_line,
+    input_files,
+    reading,
+)
 
 __all__ = ["add_refine", "cmd_refine"]
 
@@ -37,7 +46,7 @@ def add_refine(sub) -> argparse.ArgumentParser:
         help="logs that judge the fit (not the identification's held-out part you report on)",
     )
     p.add_argument("--delay", action="store_true", help="also fit a torque delay, s")
-    p.add_argument("--out", default="refined", help="output folder")
+    add_output(p, default="refined", what="the refined MJCF and its report")
     add_reading(p)
     p.set_defaults(func=cmd_refine)
     return p
@@ -62,14 +71,16 @@ def cmd_refine(args) -> int:
         )
     except (ImportError, ValueError) as exc:  # the missing extra, logs too short
         raise UsageError(" ".join(str(exc).split())) from None
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "refined.xml").write_text(result.mjcf, encoding="utf-8")
-    (out / "refinement.json").write_text(json.dumps(result.summary(), indent=1))
-    lines = result.lines()
-    (out / "refinement.md").write_text(
-        "# Refinement on MuJoCo rollouts\n\n```text\n" + "\n".join(lines) + "\n```\n"
-    )
+    out, lines = Path(args.out), result.lines()
+    inputs = input_files(args.model, *args.logs, *args.held_out)
+    with output_folder(
+        out, overwrite=args.overwrite, inputs=inputs, command=command_line(args)
+    ) as stage:
+        (stage / "refined.xml").write_text(result.mjcf, encoding="utf-8")
+        (stage / "refinement.json").write_text(json.dumps(result.summary(), indent=1))
+        (stage / "refinement.md").write_text(
+            "# Refinement on MuJoCo rollouts\n\n```text\n" + "\n".join(lines) + "\n```\n"
+        )
     for line in lines:
         print(line)
     kept = ", ".join(result.accepted) or "nothing (the identified values stay)"

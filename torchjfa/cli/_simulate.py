@@ -77,7 +77,10 @@ def add_simulate(sub) -> argparse.ArgumentParser:
         metavar="ROBOT",
         help=f"a URDF or MJCF file, a shipped description or {'|'.join(SIMULATED)}",
     )
-    p.add_argument("--out", required=True, help="output: .csv, .npz or .parquet")
+    p.add_argument(
+        "--out", required=True, help="output: .csv, .npz or .parquet (written whole, or not at all)"
+    )
+    p.set_defaults(output="file")
     p.add_argument("--n-samples", type=int, default=default_of(simulate, "n_samples"),
                    help="samples at the control rate")  # fmt: skip
     p.add_argument("--seed", type=int, default=default_of(simulate, "seed"),

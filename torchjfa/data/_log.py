@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._util import atomic_file
 from ._columns import gather, seconds, table_columns
 from ._joints import permutation
 from ._npz import NpzArchive, npz_columns
@@ -389,25 +390,27 @@ def read_log(
 def write_log(log: JointLog, path: str | os.PathLike, *, format: str | None = None) -> None:
     """Write a `JointLog` as a CSV, NPZ (one array per column) or Parquet file.
 
-    The columns are named as `read_log` reads them (``t``, ``q_<joint>``, ...).
+    The columns are named as `read_log` reads them (``t``, ``q_<joint>``, ...). The file is
+    written whole or not at all (`torchjfa.io.atomic_file`).
     """
     path = Path(path)
     fmt = _format(path, format)
     if fmt == "ros":
         raise LogError(f"{path}: write_log writes csv, npz or parquet files, not ROS bags")
     cols = log.to_columns()
-    if fmt == "npz":
-        with open(path, "wb") as fh:
-            np.savez_compressed(fh, **cols)
-        return
-    import pyarrow as pa
+    with atomic_file(path) as tmp:
+        if fmt == "npz":
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **cols)
+            return
+        import pyarrow as pa
 
-    table = pa.table(cols)
-    if fmt == "csv":
-        from pyarrow import csv
+        table = pa.table(cols)
+        if fmt == "csv":
+            from pyarrow import csv
 
-        csv.write_csv(table, path)
-    else:
-        from pyarrow import parquet
+            csv.write_csv(table, tmp)
+        else:
+            from pyarrow import parquet
 
-        parquet.write_table(table, path)
+            parquet.write_table(table, tmp)

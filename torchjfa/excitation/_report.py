@@ -14,11 +14,14 @@ from __future__ import annotations
 import inspect
 import json
 import math
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .._util import output_folder
 from ..dynamics import RigidBodyModel
 from ._check import check_limits, physical_margins, trajectory_geometry
 from ._design import DEFAULT_RATE, ExcitationResult, optimize_excitation, random_excitation
@@ -104,31 +107,42 @@ class ExcitationDesign:
             f"{r['condition_number']:.4g}, {r['condition_number'] / o['condition_number']:.2f}x)"
         )
 
-    def write(self, folder, *, plots: bool = True, command: str = "") -> dict[str, Path]:
-        """Write the trajectory, its coefficients, the report and (``plots``) the figures.
+    def write(
+        self,
+        folder,
+        *,
+        plots: bool = True,
+        command: str = "",
+        overwrite: bool = False,
+        inputs: Iterable[str | os.PathLike] = (),
+    ) -> dict[str, Path]:
+        """Write the trajectory, its coefficients, the report and (``plots``) the figures, as
+        one unit (`torchjfa.io.output_folder`).
 
         Args:
-            folder: the output folder (created).
+            folder: the output folder (created; an earlier result in it is replaced whole).
             plots: write ``trajectory.png`` and ``singular_values.png``.
-            command: the command line that made it, for the report.
+            command: the command line that made it, for the report and the manifest.
+            overwrite: replace ``folder`` even where it holds files the library did not write.
+            inputs: the description it was designed for, hashed into the manifest.
 
         Returns:
             Name -> path of what was written.
         """
         out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = _write_trajectory(out, self.model, self.trajectory, self.rate, self.duration)
-        summary = self.summary(command)
-        paths["json"] = out / "report.json"
-        paths["json"].write_text(json.dumps(summary, indent=1))
-        paths["markdown"] = out / "report.md"
-        paths["markdown"].write_text(_markdown(summary, self.result.limits))
-        if plots:
-            paths.update(
-                _plots(out, self.model, self.result.limits, self.trajectory, self.random,
-                       self.information, self.rate, self.duration)
-            )  # fmt: skip
-        return paths
+        with output_folder(out, overwrite=overwrite, inputs=inputs, command=command) as stage:
+            paths = _write_trajectory(stage, self.model, self.trajectory, self.rate, self.duration)
+            summary = self.summary(command)
+            paths["json"] = stage / "report.json"
+            paths["json"].write_text(json.dumps(summary, indent=1))
+            paths["markdown"] = stage / "report.md"
+            paths["markdown"].write_text(_markdown(summary, self.result.limits))
+            if plots:
+                paths.update(
+                    _plots(stage, self.model, self.result.limits, self.trajectory, self.random,
+                           self.information, self.rate, self.duration)
+                )  # fmt: skip
+        return {key: out / path.name for key, path in paths.items()}
 
 
 def design_excitation(

@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
 
+from .._util import output_folder
 from ..data import JointLog
 from ..dynamics import RigidBodyModel
 from ..report import TorqueFit, predicted_torques, torque_errors
@@ -108,27 +110,42 @@ class Evaluation:
             rows += r.lines()
         return rows
 
-    def write(self, out_dir: str | os.PathLike, *, plots: bool = True) -> dict[str, Path]:
+    def write(
+        self,
+        out_dir: str | os.PathLike,
+        *,
+        plots: bool = True,
+        overwrite: bool = False,
+        inputs: Iterable[str | os.PathLike] = (),
+        command: str = "",
+    ) -> dict[str, Path]:
         """``evaluation.json`` and, with ``plots``, one figure of measured and predicted torques
-        per log (``torques_<i>.png``) in ``out_dir``; returns the paths."""
+        per log (``torques_<i>.png``) in ``out_dir``, written as one unit
+        (`torchjfa.io.output_folder`: ``overwrite``, ``inputs``, ``command``); returns the
+        paths."""
+        out = Path(out_dir)
+        with output_folder(out, overwrite=overwrite, inputs=inputs, command=command) as stage:
+            names = self._write_files(stage, plots)
+        return {key: out / name for key, name in names.items()}
+
+    def _write_files(self, stage: Path, plots: bool) -> dict[str, str]:
+        """The files of `write` into ``stage``; returns key -> file name."""
         from ..report._figures import torques_figure
 
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = {"json": out / "evaluation.json"}
-        paths["json"].write_text(json.dumps(self.summary(), indent=1))
+        names = {"json": "evaluation.json"}
+        (stage / names["json"]).write_text(json.dumps(self.summary(), indent=1))
         if plots:
             import matplotlib.pyplot as plt
 
             kinds = dict(zip(self.model.joint_names, self.model.joint_types, strict=True))
             for i, (_, (log, fits)) in enumerate(self.logs.items()):
-                paths[f"torques_{i}"] = out / f"torques_{i}.png"
-                fig = torques_figure(log, fits, kinds, paths[f"torques_{i}"], seconds=10.0)
+                names[f"torques_{i}"] = f"torques_{i}.png"
+                fig = torques_figure(log, fits, kinds, stage / names[f"torques_{i}"], seconds=10.0)
                 plt.close(fig)
             for i, r in enumerate(self.rollouts.values()):
-                paths[f"rollouts_{i}"] = out / f"rollouts_{i}.png"
-                plt.close(r.figure(paths[f"rollouts_{i}"]))
-        return paths
+                names[f"rollouts_{i}"] = f"rollouts_{i}.png"
+                plt.close(r.figure(stage / names[f"rollouts_{i}"]))
+        return names
 
 
 def evaluate(

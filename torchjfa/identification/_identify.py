@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import time
 import warnings as _warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -91,11 +91,26 @@ class Identification:
         return self.result.inverse_dynamics(projected=projected, trainable=trainable)
 
     def write(
-        self, out_dir: str | os.PathLike, *, plots: bool = True, appendix: bool = False
+        self,
+        out_dir: str | os.PathLike,
+        *,
+        plots: bool = True,
+        appendix: bool = False,
+        overwrite: bool = False,
+        inputs: Iterable[str | os.PathLike] = (),
+        command: str = "",
     ) -> dict[str, Path]:
-        """Write the report's folder (`IdentificationReport.write`; ``appendix``: the long
-        tables at the end of ``report.md``); returns the paths."""
-        return self.report.write(out_dir, plots=plots, appendix=appendix)
+        """Write the report's folder as one unit (`IdentificationReport.write`: ``appendix``,
+        the long tables at the end of ``report.md``; ``overwrite``, ``inputs``, ``command``, the
+        folder's manifest); returns the paths."""
+        return self.report.write(
+            out_dir,
+            plots=plots,
+            appendix=appendix,
+            overwrite=overwrite,
+            inputs=inputs,
+            command=command,
+        )
 
     def headline(self) -> list[str]:
         """Two lines: what was identified, and how it predicts the held-out torques."""

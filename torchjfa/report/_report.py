@@ -7,13 +7,14 @@ import csv
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .._util import output_folder
 from ..data import JointLog
 from ..metrics import nmse, rms
 from ..physical import BaseParameters, ConsistencyReport, base_parameters, check
@@ -380,24 +381,47 @@ class IdentificationReport:
         return text
 
     def write(
-        self, out_dir: str | os.PathLike, *, plots: bool = True, appendix: bool = False
+        self,
+        out_dir: str | os.PathLike,
+        *,
+        plots: bool = True,
+        appendix: bool = False,
+        overwrite: bool = False,
+        inputs: Iterable[str | os.PathLike] = (),
+        command: str = "",
     ) -> dict[str, Path]:
         """Write the model, data, tables, figures and Markdown report into ``out_dir``
-        (``appendix``: the long tables at the end of ``report.md``, see `markdown`).
+        (``appendix``: the long tables at the end of ``report.md``, see `markdown`), as one
+        unit (`torchjfa.io.output_folder`): a run killed while writing leaves the earlier
+        folder as it was, and no file of an earlier result stays beside the new ones.
+
+        Args:
+            overwrite: replace ``out_dir`` even where it holds files the library did not write.
+            inputs, command: the logs and the description it came from, and the command line,
+                for the folder's ``manifest.json``.
 
         Returns:
             name -> path of each file written.
+
+        Raises:
+            torchjfa.io.OutputError: ``out_dir`` is a file or a symbolic link, holds files the
+                library did not write (without ``overwrite``), or another run is writing it.
         """
+        out = Path(out_dir)
+        with output_folder(out, overwrite=overwrite, inputs=inputs, command=command) as stage:
+            written = self._write_files(stage, out, plots=plots, appendix=appendix)
+        return {key: out / path.name for key, path in written.items()}
+
+    def _write_files(self, stage: Path, out: Path, *, plots: bool, appendix: bool):
+        """Every file of `write` into ``stage`` (``out``: the folder they will be read from)."""
         from ..io import save_identified
 
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         paths = {
-            "model": out / "model.npz",
-            "validation": out / "validation.npz",
-            "parameters": out / "parameters.csv",
-            "json": out / "report.json",
-            "markdown": out / "report.md",
+            "model": stage / "model.npz",
+            "validation": stage / "validation.npz",
+            "parameters": stage / "parameters.csv",
+            "json": stage / "report.json",
+            "markdown": stage / "report.md",
         }
         fit = self.fits["identified"]
         est = self.result.estimator
@@ -412,7 +436,7 @@ class IdentificationReport:
         if isinstance(prep, Mapping) and prep.get("cutoff_hz") is not None:
             extras["cutoff_hz"] = float(prep["cutoff_hz"])  # `torchjfa evaluate` prepares with it
         save_identified(paths["model"], self.model, self.result.theta, **extras)
-        paths.update(self._write_description(out))
+        paths.update(self._write_description(stage))
         v = self.validation
         np.savez_compressed(
             paths["validation"],
@@ -426,8 +450,8 @@ class IdentificationReport:
             w.writerows({k: "" if x is None else x for k, x in r.items()} for r in self.csv_rows())
         images = {}
         if plots:
-            paths["torques"] = out / "torques.png"
-            paths["parameters_png"] = out / "parameters.png"
+            paths["torques"] = stage / "torques.png"
+            paths["parameters_png"] = stage / "parameters.png"
             self.plot_torques(paths["torques"])
             self.plot_parameters(paths["parameters_png"])
             images = {

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .._util import atomic_file
 from ..data import JointLog, NpzArchive, read_log
 from ._trajectory import SinusoidTrajectory
 
@@ -241,7 +242,7 @@ class SimulatedLog(JointLog):
             arrays["traj_amplitude"] = tr.amplitude
             arrays["traj_harmonic"] = tr.harmonic.astype(np.int64)
             arrays["traj_phase"] = tr.phase
-        with open(os.fspath(path), "wb") as fh:
+        with atomic_file(path) as tmp, open(tmp, "wb") as fh:  # whole, or not at all
             np.savez_compressed(fh, **arrays)
 
     @classmethod
