@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import json
 import os
 import re
 import subprocess
@@ -71,6 +72,14 @@ def test_the_getting_started_examples_run_as_written(tmp_path, monkeypatch, caps
     assert namespace["ident"].identified_well
     rms = float(capsys.readouterr().out.split(" N m RMS")[0].split()[-1])
     assert rms < 0.2 * float(namespace["tau"].std())
+
+
+def test_the_report_pages_own_folder_example_runs_as_written(tmp_path, monkeypatch):
+    (block,) = python_blocks(DOCS / "report.md")
+    monkeypatch.chdir(tmp_path)
+    exec(compile(block, "report.md", "exec"), {"__name__": "__docs__"})
+    manifest = json.loads((tmp_path / "my_result" / "manifest.json").read_text())
+    assert manifest["command"] == "my_script.py" and set(manifest["files"]) == {"notes.txt"}
 
 
 def test_the_pages_describe_the_library_as_it_is_now():
