@@ -406,3 +406,40 @@ def test_the_real_ur10e_currents_and_velocities():
     log.qd = log.qd * (180 / math.pi)
     (p,) = check_log(log)
     assert p.fatal and "deg/s" in p.message
+
+
+# ------------------------------------------------------------------------ damaged and ragged
+def test_a_cut_last_line_is_named_by_its_number(tmp_path):
+    path = _write(
+        tmp_path / "log.csv", _columns(n=80)
+    )  # past the lines the delimiter is found from
+    path.write_text(path.read_text() + "0.81,0.5")  # the writer was stopped mid-line
+    with pytest.raises(LogError, match=r"line 82 has 2 fields where the header has 7") as err:
+        read_log(path)
+    assert "delete that line" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_column_named_twice_is_refused_by_name(tmp_path):
+    path = tmp_path / "log.csv"
+    path.write_text("t,q_a,tau_a,tau_a\n0,1,2,3\n0.01,1,2,3\n0.02,1,2,3\n")
+    with pytest.raises(LogError, match=r"the columns \['tau_a'\] are named more than once"):
+        read_log(path)
+    path.write_text("t, q_a ,q_a,tau_a\n0,1,2,3\n0.01,1,2,3\n0.02,1,2,3\n")  # equal once stripped
+    with pytest.raises(LogError, match=r"\['q_a'\] are named more than once"):
+        read_log(path)
+
+
+def test_npz_columns_of_different_lengths_are_named(tmp_path):
+    cols = _columns(n=30)
+    cols["tau_b"] = cols["tau_b"][:-3]
+    np.savez(tmp_path / "log.npz", **cols)
+    with pytest.raises(LogError, match=r"the time has 30 rows, but 'tau_b' 27"):
+        read_log(tmp_path / "log.npz")
+
+
+def test_npz_object_arrays_are_refused_and_never_unpickled(tmp_path):
+    cols = _columns(n=4)
+    cols["q_a"] = np.array([1.0, "x", None, 2], dtype=object)
+    np.savez(tmp_path / "log.npz", **cols)
+    with pytest.raises(LogError, match=r"member 'q_a' holds Python objects, which are not read"):
+        read_log(tmp_path / "log.npz")

@@ -185,6 +185,26 @@ def test_mjcf_equality_constraints_are_refused_unless_inactive():
     assert RigidBodyModel.from_mjcf(inactive).joint_names == ("j1", "j2")
 
 
+def test_mjcf_entities_are_refused_before_mujoco_reads_them(tmp_path, capsys):
+    from torchjfa.cli import main
+
+    text = (
+        '<!DOCTYPE mujoco [<!ENTITY m "1.0">]>\n<mujoco><worldbody><body name="b">'
+        '<joint name="j"/><inertial pos="0 0 0" mass="&m;" diaginertia="1 1 1"/></body>'
+        "</worldbody></mujoco>"
+    )
+    with pytest.raises(ValueError, match=r"declares a document type or entities"):
+        RigidBodyModel.from_mjcf(text)
+    (tmp_path / "robot.xml").write_text(text)
+    assert main(["excite", str(tmp_path / "robot.xml"), "--out", str(tmp_path / "t")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "entities" in err and not (tmp_path / "t").exists()
+    # MuJoCo's own two-line messages come as one line
+    with pytest.raises(ValueError, match=r"MuJoCo cannot compile this MJCF") as bad:
+        RigidBodyModel.from_mjcf(text.split("\n", 1)[1].replace("&m;", "heavy"))
+    assert "\n" not in str(bad.value)
+
+
 def test_fixed_joints_equal_the_same_joints_written_fixed():
     model = RigidBodyModel.from_urdf(MIMIC, fixed_joints=("f1", "f2"))
     # written out by hand: both fingers attached by fixed joints at the same origins

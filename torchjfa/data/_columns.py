@@ -251,6 +251,15 @@ def gather(
         are = "columns {} are not numeric" if len(text) > 1 else "column {} is not numeric"
         raise LogError(f"{where}: {are.format(_quoted(text))}")
     t = raw[mapping.get(TIME_COLUMN, TIME_COLUMN)]
+    other = {c: len(raw[c]) for c in dict.fromkeys(mapping.get(n, n) for ns in sources.values()
+                                                     for n in ns) if len(raw[c]) != len(t)}  # fmt: skip
+    if other:
+        raise LogError(
+            f"{where}: the columns have different lengths: the time has {len(t)} rows, but "
+            + ", ".join(f"{c!r} {n}" for c, n in list(other.items())[:4])
+            + (f" and {len(other) - 4} more" if len(other) > 4 else "")
+            + "; give every column one value per sample"
+        )
     signals = {
         kind: np.stack([raw[mapping.get(n, n)].astype(np.float64) for n in ns], axis=1)
         for kind, ns in sources.items()

@@ -121,7 +121,13 @@ class NpzArchive:
 
 def _load(zf: zipfile.ZipFile, key: str) -> np.ndarray:
     with zf.open(f"{key}.npy") as fh:
-        return np.lib.format.read_array(fh, allow_pickle=False)
+        try:
+            return np.lib.format.read_array(fh, allow_pickle=False)
+        except ValueError as exc:  # an object array: pickled Python objects, never unpickled
+            raise LogError(
+                f"{zf.filename}: member {key!r} holds Python objects, which are not read (they "
+                "would be unpickled): save it as a numeric array, np.asarray(x, dtype=float)"
+            ) from exc
 
 
 class _Rows:

@@ -93,11 +93,44 @@ def read_table(path: Path):
             source, parse = path, pa_csv.ParseOptions(delimiter=delimiter)
         table = pa_csv.read_csv(source, parse_options=parse, convert_options=convert)
     except (pa.ArrowInvalid, OSError, UnicodeError) as exc:
+        ragged = _ragged_line(path, delimiter)
+        if ragged is not None:
+            line, got, want = ragged
+            raise LogError(
+                f"{path}: line {line} has {got} fields where the header has {want} with the "
+                f"delimiter {DELIMITER_NAMES[delimiter]} (a log cut while it was written ends "
+                "so): delete that line, or fix it"
+            ) from None
         raise LogError(
             f"{path}: cannot read it as delimited text with the delimiter "
             f"{DELIMITER_NAMES[delimiter]} (found from its first lines): {exc}"
         ) from None
     names = [str(n).strip() for n in table.column_names]
-    if len(set(names)) == len(names):
-        table = table.rename_columns(names)
-    return table, delimiter
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise LogError(
+            f"{path}: the columns {twice} are named more than once; rename or drop the copies "
+            "(which of them is the signal cannot be told)"
+        )
+    return table.rename_columns(names), delimiter
+
+
+def _ragged_line(path: Path, delimiter: str) -> tuple[int, int, int] | None:
+    """The first line (1-based) whose number of fields differs from the header's, with both
+    numbers; None when every line has the header's (the parse failed for another reason).
+    Fields are counted by splitting at the delimiter (quoted delimiters are not expected in
+    numeric logs)."""
+
+    def fields(line: str) -> int:
+        return len(line.split()) if delimiter == SPACES else line.count(delimiter) + 1
+
+    want = None
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for k, line in enumerate(fh, start=1):
+            if not line.strip():
+                continue
+            if want is None:
+                want = fields(line)
+            elif fields(line) != want:
+                return k, fields(line), want
+    return None

@@ -23,6 +23,11 @@ def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree,
     compiled ``MjModel``."""
     import mujoco
 
+    if "<!DOCTYPE" in text or "<!ENTITY" in text:
+        raise ValueError(
+            "the MJCF declares a document type or entities (<!DOCTYPE ...>, <!ENTITY ...>), "
+            "which are not read: write their values into the file"
+        )
     try:
         model = (
             mujoco.MjModel.from_xml_path(path)
@@ -30,7 +35,8 @@ def tree_from_mjcf(text: str, path: str | None, gravity) -> tuple[KinematicTree,
             else mujoco.MjModel.from_xml_string(text)
         )
     except ValueError as exc:
-        raise ValueError(f"MuJoCo cannot compile this MJCF: {exc}") from exc
+        # MuJoCo's message spans lines (the error, then the element): one line here
+        raise ValueError(f"MuJoCo cannot compile this MJCF: {' '.join(str(exc).split())}") from exc
     _check_mjcf(model)
     if gravity is None:
         gravity = np.array(model.opt.gravity, dtype=np.float64)

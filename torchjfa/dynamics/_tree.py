@@ -224,6 +224,8 @@ def _floats(text: str | None, n: int, default: tuple[float, ...], what: str) -> 
         raise ValueError(f"cannot read {n} number(s) from {what}={text!r}") from exc
     if len(vals) != n:
         raise ValueError(f"{what} needs {n} number(s), got {text!r}")
+    if not all(np.isfinite(vals)):
+        raise ValueError(f"{what}={text!r} is not a finite number; give a number")
     return np.array(vals, dtype=np.float64)
 
 

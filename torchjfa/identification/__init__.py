@@ -58,6 +58,7 @@ from ._prepare import prepare_data as prepare_data
 from ._prior import PRIOR_BLOCKS as PRIOR_BLOCKS
 from ._prior import PRIOR_TOLERANCE as PRIOR_TOLERANCE
 from ._prior import PRIOR_WEIGHTS as PRIOR_WEIGHTS
+from ._prior import description_problems as description_problems
 from ._read import RawLog as RawLog
 from ._read import load_model as load_model
 from ._read import read as read

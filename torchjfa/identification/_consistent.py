@@ -11,7 +11,13 @@ from .._util import single_thread
 from ..physical import project
 from ..report._result import IdentificationResult
 from ._options import IdentificationError, Options
-from ._prior import check_description_prior, choose_prior_weight, pick_prior_weight, prior_options
+from ._prior import (
+    check_description_prior,
+    choose_prior_weight,
+    description_problems,
+    pick_prior_weight,
+    prior_options,
+)
 
 __all__ = ["make_consistent"]
 
@@ -34,6 +40,9 @@ def make_consistent(
     directions the data determine barely move; ``"auto"`` chooses ``w`` by cross-validation over
     the training blocks of ``result.blocks`` (`torchjfa.identification.PRIOR_WEIGHTS`: the
     largest weight whose held-out RMS error is within 1 % of the lowest).
+    A description whose own inertials are not physically consistent (`description_problems`:
+    a mass that is not positive, an inertia that is not, a broken triangle inequality) is no
+    prior: with ``"auto"`` the prior is off; either way a warning names its bodies.
 
     Args:
         result: the `IdentificationResult` of `fit` (or `correct_bias`).
@@ -55,7 +64,12 @@ def make_consistent(
     if bad:
         raise IdentificationError(f"projection_options may not set {bad}; the stage sets them")
     weight = options.description_prior
-    choice = None
+    choice, warnings = None, list(result.warnings)
+    problems = description_problems(result.model) if weight is not None else []
+    if problems:
+        warnings.append(_inconsistent_description(problems, weight))
+        if weight == "auto":
+            weight = None
     if check_description_prior(weight, extra, True):
         if not result.blocks or len(result.blocks) < 2:
             raise IdentificationError(
@@ -91,4 +105,21 @@ def make_consistent(
         projection=projection,
         prior_weight=None if weight is None else float(weight),
         prior_choice=choice,
+        warnings=warnings,
+    )
+
+
+def _inconsistent_description(problems: list[str], weight) -> str:
+    """The warning for a description whose own inertials are not physically consistent."""
+    what = "; ".join(problems)
+    if weight == "auto":
+        return (
+            f"the description's inertials are not physically consistent ({what}): the "
+            "projection does not pull towards the description (no description prior); fix "
+            "those bodies' inertials in the description, or give the prior's weight "
+            "(--description-prior W) to use them as they are"
+        )
+    return (
+        f"the description's inertials are not physically consistent ({what}), and the "
+        f"projection pulls towards them with the weight {weight} given"
     )

@@ -19,7 +19,7 @@ from typing import NamedTuple
 import torch
 
 from ..estimators._jackknife import refit_totals, refit_without
-from ..physical import parameter_scales, unconstrained_projection
+from ..physical import check, parameter_scales, unconstrained_projection
 from ..report._result import PRIOR_TOLERANCE as _PRIOR_TOLERANCE
 from ..stats import Moments
 
@@ -28,6 +28,7 @@ __all__ = [
     "PRIOR_TOLERANCE",
     "PRIOR_BLOCKS",
     "check_description_prior",
+    "description_problems",
     "choose_prior_weight",
     "pick_prior_weight",
     "prior_options",
@@ -79,6 +80,28 @@ class _PriorUnits(NamedTuple):
             "prior_scale": self.scale,
             "prior_weight": weight * self.per_weight,
         }
+
+
+def description_problems(model) -> list[str]:
+    """What makes the description's own inertials physically inconsistent, one entry per body
+    (named by its link and joint): a mass that is not positive, an inertia at the centre of mass that is
+    not positive semidefinite, principal moments that break the triangle inequality
+    (`torchjfa.physical.check` of ``model.nominal_theta``). Empty for a consistent description.
+    A description with such a body is no prior to pull an estimate towards."""
+    r = check(model.nominal_theta, model)
+    problems = []
+    for k, (body, joint) in enumerate(zip(model.body_names, r.joint_names, strict=True)):
+        name = f"{body} (joint {joint})"
+        moments = ", ".join(f"{float(v):.3g}" for v in r.principal_moments[k])
+        if not r.mass_ok[k]:
+            problems.append(f"{name}: mass {float(r.mass[k]):.3g} kg")
+        elif not r.inertia_ok[k]:
+            problems.append(f"{name}: principal moments {moments} kg m^2, not all >= 0")
+        elif not r.triangle_ok[k]:
+            problems.append(
+                f"{name}: principal moments {moments} kg m^2 break the triangle inequality"
+            )
+    return problems
 
 
 def check_description_prior(value, options: Mapping, project: bool) -> bool:
