@@ -443,3 +443,35 @@ def test_npz_object_arrays_are_refused_and_never_unpickled(tmp_path):
     np.savez(tmp_path / "log.npz", **cols)
     with pytest.raises(LogError, match=r"member 'q_a' holds Python objects, which are not read"):
         read_log(tmp_path / "log.npz")
+
+
+# ------------------------------------------------------------------------------------ spikes
+def test_spike_rows_finds_isolated_spikes_and_leaves_motion_alone():
+    from torchjfa.data import spike_rows
+
+    t = np.linspace(0.0, 20.0, 2000)
+    x = np.column_stack([np.sin(t), 0.3 * np.sign(np.sin(3 * t)), np.round(1e-3 * t, 4)])
+    assert not spike_rows(x).any()  # a smooth signal, a friction-like step, a quantised ramp
+    burst = x.copy()
+    burst[700:702, 0] += 50.0  # two samples: not isolated
+    burst[1200, 2] += 2e-4  # two quanta on a channel that barely moves
+    assert not spike_rows(burst).any()
+    spiked = x.copy()
+    spiked[500, 0], spiked[900, 1], spiked[1500, 2] = 1e30, -9.0, 0.5
+    found = spike_rows(spiked)
+    assert [np.flatnonzero(found[:, c]).tolist() for c in range(3)] == [[500], [900], [1500]]
+
+
+def test_a_spiked_log_is_refused_by_channel_and_row_or_dropped_on_request(tmp_path, capsys):
+    from torchjfa.cli import main
+
+    cols = _columns(n=60)
+    cols["tau_b"][31] = 1e30  # one sample of a missing value's stand-in
+    path = _write(tmp_path / "log.csv", cols)
+    with pytest.raises(LogError, match=r"isolated spikes.*\(tau_b row\(s\) 31,.*--drop-outliers"):
+        read_log(path)
+    log = read_log(path, drop_outliers=True)
+    assert log.n_samples == 59 and float(log.tau.abs().max()) < 10
+    assert any("dropped 1 rows holding isolated spikes" in n for n in log.info["read_notes"])
+    assert main(["identify", "head", str(path), "--out", str(tmp_path / "r")]) == 2
+    assert "--drop-outliers" in capsys.readouterr().err

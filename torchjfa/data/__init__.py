@@ -19,6 +19,9 @@ row range); `log_sources` streams logs to `torchjfa.identification.stream_moment
 
 from ._checks import LogProblem as LogProblem
 from ._checks import check_log as check_log
+from ._columns import SPIKE_RANGE as SPIKE_RANGE
+from ._columns import SPIKE_STEPS as SPIKE_STEPS
+from ._columns import spike_rows as spike_rows
 from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
 from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage

@@ -274,6 +274,41 @@ def gather(
     return t, joints, signals, info
 
 
+#: an isolated spike stands out from both its neighbours by more than this many robust steps
+#: of its channel (1.4826 x the median absolute sample-to-sample change, at least its smallest
+#: nonzero change: the quantum of a channel that mostly stands still) ...
+SPIKE_STEPS = 20.0
+#: ... and by more than this many times the channel's range (of its three-sample running
+#: median, which no isolated spike reaches):
+#: out of the signal's whole envelope and back within one sample, which no joint moves or
+#: pushes like; smaller one-sample spikes (a current's peak) are left to the fit
+SPIKE_RANGE = 5.0
+
+
+def spike_rows(x: np.ndarray) -> np.ndarray:
+    """Where ``(n, c)`` samples hold isolated spikes, channel by channel: one sample
+    above (or below) both its neighbours by more than `SPIKE_STEPS` robust steps and
+    `SPIKE_RANGE` times the channel's range (a glitch, a byte error, 1e30 for a missing value).
+    Steps (a friction's sign change) and bursts of several samples are motion, not spikes.
+
+    Returns:
+        ``(n, c)`` bool (``(n, 1)`` for ``(n,)`` samples): where the spikes are.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
+    found = np.zeros(x.shape, dtype=bool)
+    if len(x) < 5:
+        return found
+    up, down = x[1:-1] - x[:-2], x[1:-1] - x[2:]
+    jump = np.where(up * down > 0, np.minimum(np.abs(up), np.abs(down)), 0.0)
+    change = np.abs(np.diff(x, axis=0))
+    quantum = np.where(change > 0, change, np.inf).min(axis=0)
+    step = np.maximum(1.4826 * np.median(change, axis=0), np.where(np.isinf(quantum), 0, quantum))
+    smooth = np.median(np.stack([x[:-2], x[1:-1], x[2:]]), axis=0)  # no isolated spike left
+    span = smooth.max(axis=0) - smooth.min(axis=0)
+    found[1:-1] = (jump > SPIKE_STEPS * step) & (jump > SPIKE_RANGE * span)
+    return found
+
+
 def _unit(h: float, where) -> tuple[float, list[str]]:
     """Seconds per unit of a time column whose median step is ``h`` units, and the note."""
     if not h > 0 or 1.0 / h >= SECONDS_MIN_HZ:

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from .._util import atomic_file
-from ._columns import gather, seconds, table_columns
+from ._columns import gather, seconds, spike_rows, table_columns
 from ._joints import permutation
 from ._npz import NpzArchive, npz_columns
 from ._schema import KINDS, TIME_COLUMN, LogError
@@ -305,6 +305,7 @@ def read_log(
     joints: Sequence[str] | None = None,
     time_scale: float | None = None,
     drop_nan: bool = False,
+    drop_outliers: bool = False,
     format: str | None = None,
     drive_gains: Mapping[str, float] | None = None,
     topic: str | None = None,
@@ -325,6 +326,9 @@ def read_log(
             ``info["read_notes"]``).
         drop_nan: drop rows where any signal read is NaN or infinite (they are reported, and
             `LogError` is raised, when False).
+        drop_outliers: drop rows where a signal holds an isolated spike (`spike_rows`: a
+            sample far from both its neighbours and the signal's range); they are reported,
+            and `LogError` is raised, when False.
         format: ``"csv"``, ``"npz"``, ``"parquet"`` or ``"ros"`` (default from the suffix).
         drive_gains: N m/A per joint name, for a log with motor currents ``i_<joint>`` (A)
             and no torques: ``tau = gain * i``. Every joint read needs one.
@@ -370,6 +374,23 @@ def read_log(
         keep = ~bad
         t = t[keep]
         signals = {k: v[keep] for k, v in signals.items()}
+    spikes = {f"{k}_{j}": s for k, v in signals.items()
+              for j, s in zip(joints, spike_rows(v).T, strict=True) if s.any()}  # fmt: skip
+    spiked = np.flatnonzero(np.any(list(spikes.values()), axis=0)) if spikes else []
+    if spikes:
+        where = ", ".join(f"{c} row(s) {_rows(np.flatnonzero(s), 4)}" for c, s in spikes.items())
+        if not drop_outliers:
+            raise LogError(
+                f"{path}: isolated spikes, one sample far from its neighbours and from the "
+                f"signal's range ({where}, counting the first usable row as 0): drop those rows "
+                "with drop_outliers=True (--drop-outliers), the log is then resampled across "
+                "the gaps"
+            )
+        keep = np.ones(t.size, dtype=bool)
+        keep[spiked] = False
+        t, signals = t[keep], {k: v[keep] for k, v in signals.items()}
+        found["read_notes"] = [*found["read_notes"], f"dropped {spiked.size} rows holding "
+                               f"isolated spikes ({where})"]  # fmt: skip
     if t.size < 2:
         raise LogError(f"{path}: the log has {t.size} usable samples; at least 2 are needed")
     t, timing = seconds(t, time_scale, path)

@@ -168,6 +168,8 @@ class Options:
             with milliseconds, microseconds and nanoseconds recognised from the sampling rate
             (the report says so).
         drop_nan: drop rows holding NaN instead of stopping.
+        drop_outliers: drop rows holding an isolated spike instead of stopping
+            (`torchjfa.data.spike_rows`).
         max_seconds: use only the first this many seconds of each log (a quick check), or None.
         drive_gains: N m/A per joint, to turn motor-current columns ``i_<joint>`` (A) into
             joint torques: a sequence in the robot's joint order or ``{joint: gain}``; None for
@@ -263,6 +265,12 @@ class Options:
     )
     drop_nan: bool = option(
         False, group="reading", help="drop rows holding NaN (default: report them and stop)"
+    )
+    drop_outliers: bool = option(
+        False,
+        group="reading",
+        help="drop rows holding an isolated spike (one sample far from its neighbours and the "
+        "signal's range; default: report them and stop)",
     )
     max_seconds: float | None = option(
         None,

@@ -148,6 +148,7 @@ def _reading(options: Options, model: RigidBodyModel) -> dict:
     kw: dict = {
         "columns": None if options.columns is None else dict(options.columns),
         "drop_nan": options.drop_nan,
+        "drop_outliers": options.drop_outliers,
     }
     if options.time_scale is not None:
         kw["time_scale"] = options.time_scale
