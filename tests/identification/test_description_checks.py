@@ -63,6 +63,10 @@ def test_each_inconsistent_body_is_named_with_what_breaks(tmp_path):
     )
     path.write_text(_chain((1.0, 0.01, 0.01, 0.01), (2.0, 0.02, 0.03, 0.04)))
     assert description_problems(RigidBodyModel.from_urdf(str(path))) == []
+    path.write_text(_chain(*[(0.0, 0.0, 0.0, 0.0)] * 3))  # a description of kinematics only
+    assert description_problems(RigidBodyModel.from_urdf(str(path))) == [
+        "every body: mass 0 kg or less (no inertials given)"
+    ]
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf"])

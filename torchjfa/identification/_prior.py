@@ -89,6 +89,8 @@ def description_problems(model) -> list[str]:
     (`torchjfa.physical.check` of ``model.nominal_theta``). Empty for a consistent description.
     A description with such a body is no prior to pull an estimate towards."""
     r = check(model.nominal_theta, model)
+    if not bool(r.mass_ok.any()) and len(r.joint_names) > 1:
+        return [f"every body: mass {float(r.mass.max()):.3g} kg or less (no inertials given)"]
     problems = []
     for k, (body, joint) in enumerate(zip(model.body_names, r.joint_names, strict=True)):
         name = f"{body} (joint {joint})"
