@@ -168,6 +168,13 @@ def test_a_mimic_joint_is_refused_and_the_message_says_what_to_do(tmp_path):
     # a <mimic> on a fixed joint couples nothing: accepted (talos' grippers have such joints)
     fixed_mimic = MIMIC.replace('name="f2" type="prismatic"', 'name="f2" type="fixed"')
     assert RigidBodyModel.from_urdf(fixed_mimic).joint_names == ("j1", "f1")
+    # where the leaders are all that would move, the advice fixes the followers only
+    gripper = MIMIC.replace('name="j1" type="revolute"', 'name="j1" type="fixed"')
+    with pytest.raises(ValueError, match=r"fixed_joints=\('f2',\).*followers at q = 0") as info:
+        RigidBodyModel.from_urdf(gripper)
+    path.write_text(gripper)
+    assert load_model(str(path), ("viscous",), fixed_joints=("f2",)).joint_names == ("f1",)
+    assert "--fixed-joints f2)" in str(info.value)
 
 
 def test_mjcf_equality_constraints_are_refused_unless_inactive():

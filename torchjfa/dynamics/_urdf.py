@@ -262,12 +262,15 @@ def _check_moving(joints: dict[str, ET.Element], where: str) -> None:
     if mimics:
         pairs = ", ".join(f"{n!r} mimics {m!r}" for n, m in mimics.items())
         lock = tuple(dict.fromkeys([*mimics, *(m for m in mimics.values() if m in joints)]))
+        held = "hold them at q = 0 (their links are lumped into the parent)"
+        if set(lock) >= set(moving):  # fixing the leaders too would leave nothing to move
+            lock = tuple(mimics)
+            held = "hold the followers at q = 0 while the joints they follow move alone"
         raise ValueError(
             f"{where}: {len(mimics)} mimic joint(s) (a <mimic> element: the position follows "
             f"another joint's): {pairs}; coupled joints are not supported. Pass "
             f"fixed_joints={lock!r} (on the command line: --fixed-joints {','.join(lock)}) to "
-            "hold them at q = 0 (their links are lumped into the parent), or delete the <mimic> "
-            "elements to identify each as an independent joint"
+            f"{held}, or delete the <mimic> elements to identify each as an independent joint"
         )
 
 
