@@ -132,6 +132,11 @@ def test_a_second_run_into_the_same_folder_is_refused(tmp_path):
     with output_lock(out), output_folder(out) as stage:  # a command holds the lock, then writes
         (stage / "b.txt").write_text("nested")
     assert _complete(out) == {"b.txt": b"nested"}
+    with output_folder(out) as stage:  # a folder of the result's own is the result's
+        (stage / "figures").mkdir()
+    with output_folder(out) as stage:
+        (stage / "c.txt").write_text("replaced")
+    assert _complete(out) == {"c.txt": b"replaced"}
 
 
 def _generations(folder: Path, ready) -> None:

@@ -180,8 +180,9 @@ def output_lock(path: str | os.PathLike) -> Iterator[None]:
 def _written_by_us(out: Path) -> set[str]:
     """The names ``out``'s manifest lists (empty where it has none or cannot be read)."""
     try:
-        files = json.loads((out / MANIFEST).read_text(encoding="utf-8"))["files"]
-        return {str(name) for name in files} | {MANIFEST}
+        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+        names = [*manifest["files"], *manifest.get("folders", ())]
+        return {str(name) for name in names} | {MANIFEST}
     except (OSError, ValueError, KeyError, TypeError):
         return set()
 
@@ -337,6 +338,7 @@ def output_folder(
                 "command": command,
                 "inputs": _input_hashes(inputs),
                 "files": files,
+                "folders": sorted(p.name for p in staging.iterdir() if p.is_dir()),
             }
             (staging / MANIFEST).write_text(json.dumps(manifest, indent=1), encoding="utf-8")
             if not out.exists():
