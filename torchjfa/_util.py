@@ -214,11 +214,8 @@ def check_output(path: str | os.PathLike, *, folder: bool = True, overwrite: boo
         raise OutputError(f"{os.fspath(path)!r} is a file; give a folder for the results")
     if not out.is_dir() or overwrite:
         return
-    foreign = sorted(
-        p.name
-        for p in out.iterdir()
-        if p.name not in _written_by_us(out) and not p.name.startswith(_staging_prefix(out))
-    )
+    ours = _written_by_us(out)
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in ours)
     if foreign:
         shown = ", ".join(foreign[:3]) + (
             f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
@@ -287,12 +284,11 @@ def _umask_mode(mode: int) -> int:
     return mode & ~umask
 
 
-def _remove_stale(out: Path, keep: Path | None = None) -> None:
+def _remove_stale(out: Path) -> None:
     """Remove staging folders of ``out`` that earlier runs, killed, left behind (the caller
     holds the lock, so no live run owns them)."""
     for p in out.parent.glob(_staging_prefix(out) + "*"):
-        if p != keep:
-            shutil.rmtree(p, ignore_errors=True)
+        shutil.rmtree(p, ignore_errors=True)
 
 
 @contextmanager
@@ -366,7 +362,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
     check_output(path, folder=False)
     out = Path(os.path.abspath(os.fspath(path)))
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.partial-", suffix=out.suffix, dir=out.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_staging_prefix(out), suffix=out.suffix, dir=out.parent)
     os.close(fd)
     os.chmod(tmp, _umask_mode(0o666))
     try:

@@ -33,11 +33,11 @@ __all__ = [
     "command_line",
     "default_of",
     "friction_terms",
-    "input_files",
     "load_model",
     "numbers",
     "reading",
     "usage",
+    "written_as",
 ]
 
 #: bad input from the user: printed as one line, exit status 2 (the flow's own error)
@@ -125,10 +125,15 @@ def add_output(p: argparse.ArgumentParser, *, default: str, what: str) -> None:
     p.set_defaults(output="folder")
 
 
-def input_files(*paths: str | None) -> list[str]:
-    """The arguments that name files or folders on disk (a shipped robot's name is not one),
-    for a result's manifest."""
-    return [p for p in paths if p and os.path.exists(p)]
+def written_as(args, *inputs: str | None) -> dict[str, object]:
+    """The keywords of a result's writer (`torchjfa.io.output_folder` and every ``write``):
+    ``overwrite`` from ``--overwrite``, the command line, and of ``inputs`` those that name
+    files or folders on disk (a shipped robot's name is not one), for the manifest."""
+    return {
+        "overwrite": args.overwrite,
+        "inputs": [p for p in inputs if p and os.path.exists(p)],
+        "command": command_line(args),
+    }
 
 
 @contextmanager

@@ -16,11 +16,10 @@ from ._common import (
     UsageError,
     add_output,
     add_reading,
-    command_line,
     default_of,
-    input_files,
     reading,
     usage,
+    written_as,
 )
 from ._simulate import add_simulation_options, simulated_robot
 
@@ -115,9 +114,7 @@ def _evaluate_logs(args) -> int:
     paths = ev.write(
         args.out,
         plots=not args.no_plots,
-        overwrite=args.overwrite,
-        inputs=input_files(args.model, *args.logs),
-        command=command_line(args),
+        **written_as(args, args.model, *args.logs),
     )
     print(
         f"{len(ev.logs)} log(s), prepared at {ev.cutoff_hz:g} Hz, judged against the measured "

@@ -13,13 +13,12 @@ import functools
 from ._common import (
     COMMANDS,
     add_output,
-    command_line,
     default_of,
     friction_terms,
-    input_files,
     load_model,
     numbers,
     usage,
+    written_as,
 )
 
 __all__ = ["add_excite", "cmd_excite"]
@@ -202,13 +201,7 @@ def cmd_excite(args) -> int:
     except ValueError as exc:  # bad options or limits that cannot be met
         raise usage(exc) from None
     out = args.out
-    design.write(
-        out,
-        plots=not args.no_plots,
-        command=command_line(args),
-        overwrite=args.overwrite,
-        inputs=input_files(args.robot),
-    )
+    design.write(out, plots=not args.no_plots, **written_as(args, args.robot))
     print(design.headline())
     print(f"wrote {out}/trajectory.npz, trajectory.csv, coefficients.json, report.md")
     return 0

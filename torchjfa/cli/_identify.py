@@ -12,7 +12,7 @@ import argparse
 import sys
 
 from ..identification._options import GROUPS, Compute, Options, cli_fields
-from ._common import COMMANDS, UsageError, add_option, add_output, command_line, input_files
+from ._common import COMMANDS, UsageError, add_option, add_output, command_line, written_as
 
 __all__ = ["add_identify", "cmd_identify", "identify_options"]
 
@@ -69,9 +69,7 @@ def cmd_identify(args) -> int:
         args.out,
         plots=not args.no_plots,
         appendix=args.appendix,
-        overwrite=args.overwrite,
-        inputs=input_files(args.robot, *args.log, *(args.validation_log or ())),
-        command=command,
+        **written_as(args, args.robot, *args.log, *(args.validation_log or ())),
     )
     for line in ident.headline():
         print(line)

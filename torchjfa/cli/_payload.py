@@ -18,9 +18,8 @@ from ._common import (
     UsageError,
     add_output,
     add_reading,
-    command_line,
-    input_files,
     reading,
+    written_as,
 )
 
 __all__ = ["add_payload", "cmd_payload"]
@@ -98,10 +97,7 @@ def cmd_payload(args) -> int:
 def _folder(args):
     """``--out`` written as one unit (`torchjfa.io.output_folder`)."""
     return output_folder(
-        args.out,
-        overwrite=args.overwrite,
-        inputs=input_files(args.model, *args.loaded, *(args.unloaded or ())),
-        command=command_line(args),
+        args.out, **written_as(args, args.model, *args.loaded, *(args.unloaded or ()))
     )
 
 

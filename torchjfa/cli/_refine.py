@@ -16,9 +16,8 @@ from ._common import (
     UsageError,
     add_output,
     add_reading,
-    command_line,
-    input_files,
     reading,
+    written_as,
 )
 
 __all__ = ["add_refine", "cmd_refine"]
@@ -72,10 +71,7 @@ def cmd_refine(args) -> int:
     except (ImportError, ValueError) as exc:  # the missing extra, logs too short
         raise UsageError(" ".join(str(exc).split())) from None
     out, lines = Path(args.out), result.lines()
-    inputs = input_files(args.model, *args.logs, *args.held_out)
-    with output_folder(
-        out, overwrite=args.overwrite, inputs=inputs, command=command_line(args)
-    ) as stage:
+    with output_folder(out, **written_as(args, args.model, *args.logs, *args.held_out)) as stage:
         (stage / "refined.xml").write_text(result.mjcf, encoding="utf-8")
         (stage / "refinement.json").write_text(json.dumps(result.summary(), indent=1))
         (stage / "refinement.md").write_text(

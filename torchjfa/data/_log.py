@@ -376,8 +376,8 @@ def read_log(
         signals = {k: v[keep] for k, v in signals.items()}
     spikes = {f"{k}_{j}": s for k, v in signals.items()
               for j, s in zip(joints, spike_rows(v).T, strict=True) if s.any()}  # fmt: skip
-    spiked = np.flatnonzero(np.any(list(spikes.values()), axis=0)) if spikes else []
     if spikes:
+        spiked = np.flatnonzero(np.any(list(spikes.values()), axis=0))
         where = ", ".join(f"{c} row(s) {_rows(np.flatnonzero(s), 4)}" for c, s in spikes.items())
         if not drop_outliers:
             raise LogError(

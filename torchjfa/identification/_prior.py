@@ -84,10 +84,11 @@ class _PriorUnits(NamedTuple):
 
 def description_problems(model) -> list[str]:
     """What makes the description's own inertials physically inconsistent, one entry per body
-    (named by its link and joint): a mass that is not positive, an inertia at the centre of mass that is
-    not positive semidefinite, principal moments that break the triangle inequality
-    (`torchjfa.physical.check` of ``model.nominal_theta``). Empty for a consistent description.
-    A description with such a body is no prior to pull an estimate towards."""
+    (named by its link and joint): a mass that is not positive, an inertia at the centre of
+    mass that is not positive semidefinite, principal moments that break the triangle
+    inequality (`torchjfa.physical.check` of ``model.nominal_theta``); one entry where no body
+    has a mass. Empty for a consistent description. A description with such a body is no prior
+    to pull an estimate towards."""
     r = check(model.nominal_theta, model)
     if not bool(r.mass_ok.any()) and len(r.joint_names) > 1:
         return [f"every body: mass {float(r.mass.max()):.3g} kg or less (no inertials given)"]
