@@ -2,6 +2,7 @@
 `InverseDynamics`, forward dynamics (mass matrix, accelerations, rollouts) and drive trains
 (`Transmission`: motors that turn joints through gearboxes, coupled or not)."""
 
+from ._floating import FloatingBaseModel as FloatingBaseModel
 from ._forward import bias_forces as bias_forces
 from ._forward import forward_dynamics as forward_dynamics
 from ._forward import mass_matrix as mass_matrix

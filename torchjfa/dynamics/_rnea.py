@@ -33,7 +33,7 @@ import torch
 
 from ._tree import KinematicTree
 
-__all__ = ["TreeConstants", "regressor_into"]
+__all__ = ["TreeConstants", "regressor_into", "floating_regressor_into"]
 
 
 @dataclass
@@ -129,7 +129,7 @@ def _rotate_t(R: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return R[0] * v[0] + R[1] * v[1] + R[2] * v[2]
 
 
-def _forward_pass(q, qd, qdd, c: TreeConstants):
+def _forward_pass(q, qd, qdd, c: TreeConstants, root=None):
     """World-frame kinematics of every body, components first and batch last.
 
     Tiny batched matrix products are slow on CPU; with the batch as the last, contiguous
@@ -137,6 +137,10 @@ def _forward_pass(q, qd, qdd, c: TreeConstants):
 
     Args:
         q, qd, qdd: ``(n, B)``.
+        root: None for a fixed root (at rest, gravity entering as the acceleration ``-g``), or
+            the root's spatial velocity and acceleration at the world origin ``(w, v, dw, dv)``,
+            ``(3, B)`` each, gravity included (a floating base: the world frame is then the
+            base frame at this instant).
 
     Returns:
         Lists over joints: rotations ``(3, 3, B)`` body to world, body origins ``(3, B)``, the
@@ -147,14 +151,15 @@ def _forward_pass(q, qd, qdd, c: TreeConstants):
     n, B = q.shape
     rots, poss, sw, sv, vw, vv, aw, av = ([] for _ in range(8))
     s, co = torch.sin(q), torch.cos(q)
-    zero3 = q.new_zeros(3, B)
-    a_base = (-c.gravity)[:, None].expand(3, B)
+    if root is None:
+        zero3 = q.new_zeros(3, B)
+        root = (zero3, zero3, zero3, (-c.gravity)[:, None].expand(3, B))
     for k in range(n):
         p = c.parent[k]
         qdk, qddk = qd[k], qdd[k]
         if p < 0:
             W = c.rot_fixed[k][..., None].expand(3, 3, B)
-            w_p, v_p, dw_p, dv_p = zero3, zero3, zero3, a_base
+            w_p, v_p, dw_p, dv_p = root
         else:
             W = _mat_const(rots[p], c.rot_fixed[k])
             w_p, v_p, dw_p, dv_p = vw[p], vv[p], aw[p], av[p]
@@ -195,6 +200,74 @@ def _forward_pass(q, qd, qdd, c: TreeConstants):
     return rots, poss, sw, sv, vw, vv, aw, av
 
 
+def _bodies(q, qd, qdd, c: TreeConstants, root=None):
+    """Each body's motion from `_forward_pass`, stacked: rotations ``(3, 3, n, B)``, origins,
+    angular velocities and accelerations and the classical acceleration of the origin (gravity
+    included as ``-g``) in world axes, the joints' Plücker axes (angular, linear) and the
+    angular velocity and acceleration in body axes, ``(3, n, B)`` each."""
+    rots, poss, sw, sv, vw, vv, aw, av = _forward_pass(q, qd, qdd, c, root)
+    R = torch.stack(rots, 2)  # (3, 3, n, B) body-to-world
+    pos = torch.stack(poss, 1)  # (3, n, B)
+    w = torch.stack(vw, 1)
+    dw = torch.stack(aw, 1)
+    v_o = torch.stack(vv, 1) + _cross(w, pos)
+    acc = torch.stack(av, 1) + _cross(dw, pos) + _cross(w, v_o)
+    Sw = torch.stack(sw, 1)  # (3, n, B) joint axes (zero for prismatic)
+    Sv = torch.stack(sv, 1)  # (3, n, B) moments (the axis for prismatic)
+    return R, pos, w, dw, acc, Sw, Sv, _rotate_t(R, w), _rotate_t(R, dw)
+
+
+def _blocks(sa, sl, Rp, wp, dwp, accp, o_b, a_b) -> torch.Tensor:
+    """``s^T A_i`` for (axis, body) pairs, ``(10, P, B)``: the axis's angular part ``sa`` and
+    its linear part at the body origin ``sl`` (world axes), the body's rotation ``Rp``, angular
+    velocity ``wp``, acceleration ``dwp`` and origin acceleration ``accp`` (world axes), and
+    its angular velocity ``o_b`` and acceleration ``a_b`` in body axes; written out column by
+    column (m, h, I), ``(3, P, B)`` each."""
+    y_m = (sl * accp).sum(0)  # (P, B)
+    y_h = _cross(accp, sa) + _cross(sl, dwp) + _cross(wp, _cross(wp, sl))
+    x = _cross(sa, wp)
+    sa_b, x_b, yh_b = _rotate_t(Rp, sa), _rotate_t(Rp, x), _rotate_t(Rp, y_h)
+    return torch.stack(
+        [
+            y_m,
+            yh_b[0],
+            yh_b[1],
+            yh_b[2],
+            sa_b[0] * a_b[0] + x_b[0] * o_b[0],
+            sa_b[0] * a_b[1] + sa_b[1] * a_b[0] + x_b[0] * o_b[1] + x_b[1] * o_b[0],
+            sa_b[1] * a_b[1] + x_b[1] * o_b[1],
+            sa_b[0] * a_b[2] + sa_b[2] * a_b[0] + x_b[0] * o_b[2] + x_b[2] * o_b[0],
+            sa_b[1] * a_b[2] + sa_b[2] * a_b[1] + x_b[1] * o_b[2] + x_b[2] * o_b[1],
+            sa_b[2] * a_b[2] + x_b[2] * o_b[2],
+        ]
+    )
+
+
+def _joint_rows(out, qd, qdd, motion, c: TreeConstants, friction: tuple[str, ...]) -> None:
+    """Write the joints' rows ``(B, n, n * per)`` of the bodies' ``motion`` into ``out``."""
+    B, n = qd.shape
+    per = 10 + len(friction)
+    R, pos, w, dw, acc, Sw, Sv, w_b, dw_b = motion
+    jj, ii = c.pairs  # every (ancestor-or-self joint j, body i) pair
+    sa = Sw[:, jj]  # (3, P, B) joint j's axis at body i's origin, world axes
+    sl = Sv[:, jj] + _cross(sa, pos[:, ii])
+    blk = _blocks(sa, sl, R[:, :, ii], w[:, ii], dw[:, ii], acc[:, ii], w_b[:, ii], dw_b[:, ii])
+    cols = (jj * (n * per) + ii * per)[:, None] + torch.arange(10, device=jj.device)  # (P, 10)
+    out.view(B, -1).index_copy_(1, cols.reshape(-1), blk.permute(2, 1, 0).reshape(B, -1))
+    col = 10
+    for kind in friction:
+        if kind == "viscous":
+            vals = qd
+        elif kind == "coulomb":
+            vals = torch.sign(qd)
+        elif kind == "armature":
+            vals = qdd
+        else:
+            vals = torch.ones_like(qd)
+        out.view(B, n, n, per).diagonal(0, 1, 2)[:, col] = vals
+        col += 1
+
+
 def regressor_into(
     out: torch.Tensor,
     q: torch.Tensor,
@@ -214,57 +287,76 @@ def regressor_into(
     Returns:
         ``out``.
     """
+    qT, qdT, qddT = q.T.contiguous(), qd.T.contiguous(), qdd.T.contiguous()  # (n, B)
+    _joint_rows(out, qd, qdd, _bodies(qT, qdT, qddT, c), c, friction)
+    return out
+
+
+def floating_regressor_into(
+    out: torch.Tensor,
+    base: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    qdd: torch.Tensor,
+    c: TreeConstants,
+    friction: tuple[str, ...],
+) -> torch.Tensor:
+    """Write the regressor of a floating-base tree into ``out``.
+
+    Everything is computed in the base frame at this instant (an inertial frame that coincides
+    with the base): the base body moves with its twist, and the six base rows are the wrench
+    the base's free joint transmits, ``[force; moment]`` at the base origin in base axes, as
+    in Pinocchio's free flyer. The base body's 10 parameters come first, then the joints'.
+
+    Args:
+        out: ``(B, 6 + n, 10 + n * (10 + len(friction)))``, zero-filled, same dtype/device as q.
+        base: the base's twist and spatial acceleration in base axes and gravity there,
+            ``(v, w, a, g)`` with ``v, w (B, 3)`` the linear velocity of the base origin and
+            the angular velocity, ``a (B, 6)`` their derivatives ``[dv, dw]`` (Pinocchio's
+            free-flyer acceleration), ``g (B, 3)`` gravity in base axes, m/s^2.
+        q, qd, qdd: ``(B, n)`` joint positions (rad or m), velocities and accelerations.
+        c: the tree's constants in q's dtype and device.
+        friction: the friction terms per joint, in the layout's order.
+
+    Returns:
+        ``out``.
+    """
     B, n = q.shape
     per = 10 + len(friction)
-    qT, qdT, qddT = q.T.contiguous(), qd.T.contiguous(), qdd.T.contiguous()  # (n, B)
-    rots, poss, sw, sv, vw, vv, aw, av = _forward_pass(qT, qdT, qddT, c)
-    R = torch.stack(rots, 2)  # (3, 3, n, B) body-to-world
-    pos = torch.stack(poss, 1)  # (3, n, B)
-    w = torch.stack(vw, 1)
-    dw = torch.stack(aw, 1)
-    # classical acceleration of each body origin (gravity included as -g), world frame
-    v_o = torch.stack(vv, 1) + _cross(w, pos)
-    acc = torch.stack(av, 1) + _cross(dw, pos) + _cross(w, v_o)
-    Sw = torch.stack(sw, 1)  # (3, n, B) joint axes (zero for prismatic)
-    Sv = torch.stack(sv, 1)  # (3, n, B) moments (the axis for prismatic)
-    w_b = _rotate_t(R, w)  # (3, n, B) body frame
-    dw_b = _rotate_t(R, dw)
-    jj, ii = c.pairs  # every (ancestor-or-self joint j, body i) pair
-    Rp, wp, dwp, accp = R[:, :, ii], w[:, ii], dw[:, ii], acc[:, ii]
-    sa = Sw[:, jj]  # (3, P, B) joint j's axis at body i's origin, world axes
-    sl = Sv[:, jj] + _cross(sa, pos[:, ii])
-    # tau_j = s^T A_i pi_i, written out column by column (m, h, I) in world axes first
-    y_m = (sl * accp).sum(0)  # (P, B)
-    y_h = _cross(accp, sa) + _cross(sl, dwp) + _cross(wp, _cross(wp, sl))
-    x = _cross(sa, wp)
-    sa_b, x_b, yh_b = _rotate_t(Rp, sa), _rotate_t(Rp, x), _rotate_t(Rp, y_h)
-    a_b, o_b = dw_b[:, ii], w_b[:, ii]
-    blk = torch.stack(
-        [
-            y_m,
-            yh_b[0],
-            yh_b[1],
-            yh_b[2],
-            sa_b[0] * a_b[0] + x_b[0] * o_b[0],
-            sa_b[0] * a_b[1] + sa_b[1] * a_b[0] + x_b[0] * o_b[1] + x_b[1] * o_b[0],
-            sa_b[1] * a_b[1] + x_b[1] * o_b[1],
-            sa_b[0] * a_b[2] + sa_b[2] * a_b[0] + x_b[0] * o_b[2] + x_b[2] * o_b[0],
-            sa_b[1] * a_b[2] + sa_b[2] * a_b[1] + x_b[1] * o_b[2] + x_b[2] * o_b[1],
-            sa_b[2] * a_b[2] + x_b[2] * o_b[2],
-        ]
-    )  # (10, P, B)
-    cols = (jj * (n * per) + ii * per)[:, None] + torch.arange(10, device=jj.device)  # (P, 10)
+    v, w, a, g = (x.T.contiguous() for x in base)  # (3, B) and (6, B)
+    root = (w, v, a[3:], a[:3] - g)  # Plücker at the base origin; gravity as -g
+    motion = _bodies(q.T.contiguous(), qd.T.contiguous(), qdd.T.contiguous(), c, root)
+    joints = q.new_zeros(B, n, n * per)
+    _joint_rows(joints, qd, qdd, motion, c, friction)
+    out[:, 6:, 10:] = joints
+    # the base rows: six unit axes (3 forces, then 3 moments about the base origin) against
+    # every body, the base (index 0: identity pose, the root's motion) and the n others
+    R, pos, wb, dwb, acc, _, _, w_b, dw_b = motion
+    eye = torch.eye(3, dtype=q.dtype, device=q.device)
+    R_all = torch.cat([eye[:, :, None, None].expand(3, 3, 1, B), R], 2)  # (3, 3, n + 1, B)
+    pos_all = torch.cat([torch.zeros_like(pos[:, :1]), pos], 1)
+    w_all = torch.cat([w[:, None], wb], 1)
+    dw_all = torch.cat([root[2][:, None], dwb], 1)
+    acc_all = torch.cat([(root[3] + _cross(w, v))[:, None], acc], 1)
+    wb_all = torch.cat([w[:, None], w_b], 1)  # the base's own axes are the world's here
+    dwb_all = torch.cat([root[2][:, None], dw_b], 1)
+    m = n + 1
+    unit = eye[:, :, None, None].expand(3, 3, m, B)  # (3 components, 3 axes, m, B)
+    zero = torch.zeros_like(unit)
+    sa = torch.cat([zero, unit], 1)  # (3, 6, m, B)
+    sl = torch.cat([unit, _cross(unit, pos_all[:, None].expand(3, 3, m, B))], 1)
+    flat = lambda x: x.reshape(3, 6 * m, B)
+    blk = _blocks(
+        flat(sa),
+        flat(sl),
+        R_all[:, :, None].expand(3, 3, 6, m, B).reshape(3, 3, 6 * m, B),
+        *(flat(x[:, None].expand(3, 6, m, B)) for x in (w_all, dw_all, acc_all, wb_all, dwb_all)),
+    )  # (10, 6 * m, B)
+    width = out.shape[2]
+    body_col = torch.tensor([0, *(10 + i * per for i in range(n))], device=q.device)
+    rows = torch.arange(6, device=q.device)
+    cols = (rows[:, None] * width + body_col[None, :]).reshape(-1, 1) + torch.arange(
+        10, device=q.device
+    )  # (6 m, 10)
     out.view(B, -1).index_copy_(1, cols.reshape(-1), blk.permute(2, 1, 0).reshape(B, -1))
-    col = 10
-    for kind in friction:
-        if kind == "viscous":
-            vals = qd
-        elif kind == "coulomb":
-            vals = torch.sign(qd)
-        elif kind == "armature":
-            vals = qdd
-        else:
-            vals = torch.ones_like(qd)
-        out.view(B, n, n, per).diagonal(0, 1, 2)[:, col] = vals
-        col += 1
     return out

@@ -77,6 +77,9 @@ class KinematicTree:
         frame_rot: ``(n_frames, 3, 3)`` each frame's fixed rotation in its owner's body frame
             (in the root frame for owner -1).
         frame_pos: ``(n_frames, 3)`` its fixed position there, m.
+        base_inertial: ``(10,)`` the inertial of the root frame with every frame fixed to it,
+            about the root frame's origin in its axes (Pinocchio order): the base body of a
+            floating-base robot, unused (it never moves) on a fixed base.
     """
 
     joint_names: tuple[str, ...]
@@ -95,6 +98,7 @@ class KinematicTree:
     frame_owner: tuple[int, ...] = ()
     frame_rot: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     frame_pos: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    base_inertial: np.ndarray = field(default_factory=lambda: np.zeros(10))
 
     def ancestors(self) -> tuple[tuple[int, ...], ...]:
         """Per body i, the joints that move it: its ancestors and i itself, root first."""
@@ -355,8 +359,10 @@ def lump(frames: list[Frame], chain, gravity) -> KinematicTree:
     inertial = np.zeros((n, 10))
     lumped: list[list[str]] = [[] for _ in range(n)]
     fixed_inertial: list[dict[str, np.ndarray]] = [{} for _ in range(n)]
+    base_inertial = np.zeros(10)
     for f, rec in enumerate(frames):
         if owner[f] < 0:
+            base_inertial += transform_inertial_np(rec.inertial, rot_in_owner[f], pos_in_owner[f])
             continue
         k = index[owner[f]]
         inertial[k] += transform_inertial_np(rec.inertial, rot_in_owner[f], pos_in_owner[f])
@@ -392,4 +398,5 @@ def lump(frames: list[Frame], chain, gravity) -> KinematicTree:
         frame_owner=tuple(index[o] if o >= 0 else -1 for o in owner),
         frame_rot=np.stack(rot_in_owner),
         frame_pos=np.stack(pos_in_owner),
+        base_inertial=base_inertial,
     )

@@ -1,0 +1,204 @@
+"""The floating-base regressor against Pinocchio's free flyer and MuJoCo's mass matrix.
+
+Pinocchio (``computeJointTorqueRegressor``, ``rnea``, ``crba`` on a model built with
+``JointModelFreeFlyer``) and MuJoCo (``mj_fullM`` on the URDF compiled with a ``<freejoint>`` on
+its root body) are independent implementations; the quadrupeds and humanoids come from
+example-robot-data.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import torch
+
+import torchjfa
+from torchjfa.dynamics import FloatingBaseModel, RigidBodyModel
+from torchjfa.dynamics._floating import quaternion_matrix
+from torchjfa.dynamics._mjcf import strip_urdf_for_mujoco
+
+LEGGED = {
+    "solo12": "solo_description/robots/solo12.urdf",
+    "go2": "go2_description/urdf/go2.urdf",
+    "anymal_c": "anymal_c_simple_description/urdf/anymal.urdf",
+    "talos": "talos_data/robots/talos_reduced.urdf",
+    "g1": "g1_description/urdf/g1_29dof_rev_1_0.urdf",
+}
+
+
+def _erd(relative: str) -> str:
+    try:
+        importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    try:
+        return torchjfa.robots.example_robot_data_path(relative)
+    except FileNotFoundError:
+        pytest.skip(f"this example-robot-data has no {relative}")
+
+
+def _state(n: int, batch: int, seed: int):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(batch, 7 + n))
+    q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
+    return q, rng.normal(size=(batch, 6 + n)), rng.normal(size=(batch, 6 + n))
+
+
+class _Pinocchio:
+    """Pinocchio's free-flyer model of a URDF, with our joint order mapped onto its own."""
+
+    def __init__(self, pin, path: str, model: FloatingBaseModel):
+        self.pin = pin
+        self.pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
+        self.pd = self.pm.createData()
+        assert sorted(list(self.pm.names)[2:]) == sorted(model.joint_names)
+        self.ids = [self.pm.getJointId(n) for n in model.joint_names]
+        joints = [self.pm.joints[j] for j in self.ids]
+        assert all(j.nq == 1 and j.nv == 1 for j in joints)
+        self.iq = np.array([*range(7), *(j.idx_q for j in joints)])
+        self.iv = np.array([*range(6), *(j.idx_v for j in joints)])
+        # theta columns: the free flyer's body (joint 1), then each joint's body in our order
+        self.cols = np.array(
+            [*range(10), *(c for j in self.ids for c in range(10 * (j - 1), 10 * j))]
+        )
+
+    def state(self, q, v, a):
+        qp, vp, ap = np.zeros(self.pm.nq), np.zeros(self.pm.nv), np.zeros(self.pm.nv)
+        qp[self.iq], vp[self.iv], ap[self.iv] = q, v, a
+        return qp, vp, ap
+
+    def regressor(self, q, v, a) -> np.ndarray:
+        Y = self.pin.computeJointTorqueRegressor(self.pm, self.pd, *self.state(q, v, a))
+        return Y[np.ix_(self.iv, self.cols)]
+
+    def rnea(self, q, v, a) -> np.ndarray:
+        return self.pin.rnea(self.pm, self.pd, *self.state(q, v, a))[self.iv]
+
+    def crba(self, q) -> np.ndarray:
+        M = self.pin.crba(self.pm, self.pd, self.state(q, 0 * q[:-1], 0 * q[:-1])[0])
+        M = np.triu(M) + np.triu(M, 1).T
+        return M[np.ix_(self.iv, self.iv)]
+
+    def theta(self) -> np.ndarray:
+        inertias = self.pm.inertias
+        return np.concatenate(
+            [inertias[j].toDynamicParameters() for j in range(1, self.pm.njoints)]
+        )
+
+
+@pytest.mark.parametrize("name", list(LEGGED))
+def test_free_flyer_regressor_equals_pinocchio(name):
+    pin = pytest.importorskip("pinocchio")
+    path = _erd(LEGGED[name])
+    model = FloatingBaseModel.from_urdf(path, friction=())
+    ref = _Pinocchio(pin, path, model)
+    np.testing.assert_allclose(
+        model.nominal_theta.numpy(), ref.theta()[ref.cols], rtol=0, atol=1e-12
+    )
+    q, v, a = _state(model.n_dof, 6, seed=1)
+    Y = model.regressor(q, v, a).numpy()
+    assert Y.shape == (6, 6 + model.n_dof, model.n_params)
+    tau = model.inverse_dynamics(q, v, a, model.nominal_theta).numpy()
+    M = model.mass_matrix(q).numpy()
+    for b in range(q.shape[0]):
+        Y_ref = ref.regressor(q[b], v[b], a[b])
+        # two float64 recursions over the same decimal inputs: eps times the ~1e4 operations
+        # of a 30-body tree bounds the difference by ~1e-12 of the largest entry
+        scale = np.abs(Y_ref).max()
+        np.testing.assert_allclose(Y[b], Y_ref, rtol=0, atol=1e-12 * scale)
+        tau_ref = ref.rnea(q[b], v[b], a[b])
+        np.testing.assert_allclose(tau[b], tau_ref, rtol=0, atol=1e-12 * np.abs(tau_ref).max())
+        M_ref = ref.crba(q[b])
+        np.testing.assert_allclose(M[b], M_ref, rtol=0, atol=1e-12 * np.abs(M_ref).max())
+
+
+def test_free_flyer_mass_matrix_equals_mujoco():
+    mujoco = pytest.importorskip("mujoco")
+    path = _erd(LEGGED["solo12"])
+    model = FloatingBaseModel.from_urdf(path, friction=())
+    root = strip_urdf_for_mujoco(
+        ET.parse(path).getroot(), fusestatic="false", balanceinertia="false"
+    )
+    spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+    base = spec.worldbody.first_body()
+    assert base.name == model.base_name
+    base.add_freejoint()
+    mj = spec.compile()
+    data = mujoco.MjData(mj)
+    dof = np.array([*range(6), *(mj.jnt_dofadr[mj.joint(n).id] for n in model.joint_names)])
+    adr = [mj.jnt_qposadr[mj.joint(n).id] for n in model.joint_names]
+    q, _, _ = _state(model.n_dof, 4, seed=2)
+    M = model.mass_matrix(q).numpy()
+    for b in range(q.shape[0]):
+        data.qpos[:3] = q[b, :3]
+        data.qpos[3:7] = q[b, [6, 3, 4, 5]]  # MuJoCo's quaternion is (w, x, y, z)
+        data.qpos[adr] = q[b, 7:]
+        mujoco.mj_forward(mj, data)
+        full = np.zeros((mj.nv, mj.nv))
+        mujoco.mj_fullM(mj, data, full)
+        full = full[np.ix_(dof, dof)]
+        # MuJoCo's free joint takes the linear velocity in world axes, ours in base axes
+        T = np.eye(6 + model.n_dof)
+        T[:3, :3] = data.xmat[base.id].reshape(3, 3)
+        expected = T.T @ full @ T
+        np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def test_the_joint_rows_of_a_base_at_rest_are_the_fixed_base_regressor():
+    """With the base still and level, the joint rows are the fixed-base model's."""
+    path = _erd(LEGGED["solo12"])
+    model = FloatingBaseModel.from_urdf(path, friction=("viscous", "coulomb", "offset"))
+    fixed = RigidBodyModel.from_urdf(path, friction=("viscous", "coulomb", "offset"))
+    q, v, a = _state(model.n_dof, 5, seed=3)
+    q[:, 3:7] = (0.0, 0.0, 0.0, 1.0)
+    v[:, :6] = 0.0
+    a[:, :6] = 0.0
+    Y = model.regressor(q, v, a)
+    expected = fixed.regressor(q[:, 7:], v[:, 6:], a[:, 6:], compiled=False)
+    torch.testing.assert_close(Y[:, 6:, 10:], expected, rtol=0, atol=1e-12)
+    assert bool((Y[:, 6:, :10] == 0).all())  # the base body's inertia drives no joint
+    assert model.parameter_names[:2] == ("base_link.m", "base_link.mcx")
+    assert model.parameter_names[10:] == fixed.parameter_names
+
+
+def test_base_rows_give_total_mass_and_centre_of_mass_from_statics():
+    """At rest, the base's force rows carry the robot's whole weight: the sum of the URDF's
+    masses (read here from the file) times gravity in base axes."""
+    path = _erd(LEGGED["go2"])
+    model = FloatingBaseModel.from_urdf(path, friction=())
+    q, _, _ = _state(model.n_dof, 3, seed=4)
+    zeros = np.zeros((3, 6 + model.n_dof))
+    wrench = model.inverse_dynamics(q, zeros, zeros, model.nominal_theta).numpy()
+    masses = sum(float(m.get("value")) for m in ET.parse(path).getroot().iter("mass"))
+    R = quaternion_matrix(torch.as_tensor(q[:, 3:7])).numpy()
+    g_base = np.einsum("bji,j->bi", R, [0.0, 0.0, -9.81])
+    # the base must push up with the robot's weight: f = -m g in base axes
+    np.testing.assert_allclose(wrench[:, :3], -masses * g_base, rtol=1e-12)
+
+
+def test_bad_floating_base_inputs_are_refused():
+    path = _erd(LEGGED["solo12"])
+    model = FloatingBaseModel.from_urdf(path)
+    q, v, a = _state(model.n_dof, 2, seed=5)
+    with pytest.raises(ValueError, match=r"q must have shape \(\*batch, 19\)"):
+        model.regressor(q[:, 1:], v, a)
+    with pytest.raises(ValueError, match=r"v must have shape \(\*batch, 18\)"):
+        model.regressor(q, v[:, 1:], a[:, 1:])
+    q[1, 3:7] = (0.0, 0.0, 0.0, 2.0)
+    with pytest.raises(ValueError, match="unit quaternion; sample 1 has norm 2"):
+        model.regressor(q, v, a)
+    q[1, 3:7] = np.nan
+    with pytest.raises(ValueError, match="q"):
+        model.regressor(q, v, a)
+    with pytest.raises(ValueError, match=r"theta must have shape \(142,\)"):
+        model.inverse_dynamics(q[:1], v[:1], a[:1], torch.zeros(3))
+
+
+def test_floating_regressor_gradients_equal_finite_differences():
+    path = _erd(LEGGED["solo12"])
+    model = FloatingBaseModel.from_urdf(path, friction=("viscous", "armature"))
+    q, v, a = (torch.as_tensor(x).requires_grad_() for x in _state(model.n_dof, 2, seed=6))
+    torch.autograd.gradcheck(lambda q, v, a: model.regressor(q, v, a), (q, v, a))

@@ -1,0 +1,223 @@
+"""`FloatingBaseModel`: a robot whose root body moves freely (legged robots, humanoids).
+
+The state follows Pinocchio's free flyer, so that its numbers can be checked against Pinocchio
+and a state estimator's output used as it is:
+
+* configuration ``q (*batch, 7 + n)``: the base position in the world ``x, y, z`` (m), the base
+  orientation as a unit quaternion ``qx, qy, qz, qw``, then the joint positions;
+* velocity ``v (*batch, 6 + n)``: the base origin's linear velocity and the base's angular
+  velocity, both in base axes (m/s, rad/s), then the joint velocities;
+* acceleration ``a (*batch, 6 + n)``: the time derivatives of ``v``'s components.
+
+The generalised forces ``(*batch, 6 + n)`` are the wrench the base's free joint would transmit,
+force then moment at the base origin in base axes (N, N m; zero for a robot that no contact
+pushes on), then the joint torques. theta holds the base body's 10 inertial parameters (about
+the base frame origin, in base axes, Pinocchio's order) and then the joints' layout of the
+fixed-base `RigidBodyModel` of the same description.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import torch
+
+from .._validation import as_tensor
+from ._inputs import check_state
+from ._model import RigidBodyModel
+from ._parameters import INERTIAL_NAMES
+from ._rnea import floating_regressor_into
+
+__all__ = ["FloatingBaseModel", "quaternion_matrix"]
+
+_BASE_Q = ("base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw")
+_BASE_V = ("base_vx", "base_vy", "base_vz", "base_wx", "base_wy", "base_wz")
+_QUAT_TOL = 1e-3  # a quaternion whose norm is further than this from 1 is refused
+
+
+def quaternion_matrix(quat: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices ``(*batch, 3, 3)`` of unit quaternions ``(*batch, 4)`` in ``(x, y, z,
+    w)`` order (Pinocchio's and ROS's), normalised first."""
+    x, y, z, w = (quat / quat.norm(dim=-1, keepdim=True)).unbind(-1)
+    rows = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]  # fmt: skip
+    return torch.stack(rows, -1).reshape(*quat.shape[:-1], 3, 3)
+
+
+class FloatingBaseModel:
+    """A tree of rigid bodies on a free-flying base, with revolute and prismatic joints.
+
+    Build it with `from_urdf` (the URDF's root link is the base). `regressor` gives
+    ``Y (*batch, 6 + n, n_params)`` with ``[base wrench; joint torques] = Y theta`` in the state
+    convention of the module (Pinocchio's free flyer), `inverse_dynamics` and `mass_matrix`
+    the same quantities for one theta.
+
+    Attributes:
+        joints: the fixed-base `RigidBodyModel` of the same description (its joints, joint
+            terms, kinematics and parameter layout after the base's 10 parameters).
+        base_name: the base body (the URDF's root link).
+        parameter_names: ``base.m, ...`` then the joints' `RigidBodyModel.parameter_names`.
+    """
+
+    def __init__(self, joints: RigidBodyModel) -> None:
+        if joints.transmission is not None:
+            raise ValueError("a floating-base model takes its joint terms on the joints")
+        self.joints = joints
+        tree = joints._tree
+        self.base_name = tree.frame_names[0] if tree.frame_names else "base"
+        self._base_inertial = torch.as_tensor(tree.base_inertial, dtype=torch.float64)
+
+    @classmethod
+    def from_urdf(
+        cls,
+        source: str | bytes | os.PathLike,
+        *,
+        friction: str | Sequence[str] = ("viscous",),
+        gravity: Sequence[float] = (0.0, 0.0, -9.81),
+        fixed_joints: str | Sequence[str] = (),
+        coulomb_velocity: float = 0.0,
+    ) -> FloatingBaseModel:
+        """Read a URDF whose root link is the free-flying base.
+
+        Args are those of `RigidBodyModel.from_urdf`; ``gravity`` is in the world frame.
+
+        Raises:
+            FileNotFoundError, ValueError: as `RigidBodyModel.from_urdf`.
+        """
+        return cls(
+            RigidBodyModel.from_urdf(
+                source,
+                friction=friction,
+                gravity=gravity,
+                fixed_joints=fixed_joints,
+                coulomb_velocity=coulomb_velocity,
+            )
+        )
+
+    # ------------------------------------------------------------------ description
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.joints.joint_names
+
+    @property
+    def n_dof(self) -> int:
+        """The number of joints (the velocity has ``6 + n_dof`` entries)."""
+        return self.joints.n_dof
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        base = tuple(f"{self.base_name}.{p}" for p in INERTIAL_NAMES)
+        return base + self.joints.parameter_names
+
+    @property
+    def n_params(self) -> int:
+        return 10 + self.joints.n_params
+
+    @property
+    def nominal_theta(self) -> torch.Tensor:
+        """``(n_params,)`` float64: the description's inertials (the base's first), zero joint
+        terms."""
+        return torch.cat([self._base_inertial.clone(), self.joints.nominal_theta])
+
+    @property
+    def gravity(self) -> torch.Tensor:
+        """``(3,)`` float64, m/s^2, in the world frame."""
+        return self.joints.gravity
+
+    def __repr__(self) -> str:
+        return (
+            f"FloatingBaseModel(base={self.base_name!r}, n_dof={self.n_dof}, "
+            f"n_params={self.n_params}, friction={self.joints.friction})"
+        )
+
+    # ------------------------------------------------------------------ dynamics
+    def _check_q(self, q) -> torch.Tensor:
+        (q,) = check_state(q, joint_names=(*_BASE_Q, *self.joint_names), names=("q",))
+        if not torch.compiler.is_compiling():
+            norm = q[..., 3:7].norm(dim=-1)
+            bad = (norm - 1.0).abs() > _QUAT_TOL
+            if bool(bad.any()):
+                k = int(bad.reshape(-1).nonzero()[0])
+                raise ValueError(
+                    "the base orientation (q[..., 3:7], qx qy qz qw) must be a unit quaternion; "
+                    f"sample {k} has norm {float(norm.reshape(-1)[k]):.6g}"
+                )
+        return q
+
+    def _check(self, q, v, a) -> list[torch.Tensor]:
+        q = self._check_q(q)
+        v, a = check_state(v, a, joint_names=(*_BASE_V, *self.joint_names), names=("v", "a"))
+        if q.shape[:-1] != v.shape[:-1] or q.device != v.device:
+            raise ValueError(
+                f"q {tuple(q.shape)} and v {tuple(v.shape)} must have the same batch shape and "
+                "device"
+            )
+        dtype = torch.promote_types(q.dtype, v.dtype)
+        return [q.to(dtype), v.to(dtype), a.to(dtype)]
+
+    def _regressor(self, q, v, a, *, gravity: bool = True) -> torch.Tensor:
+        batch, n = q.shape[:-1], self.n_dof
+        q2, v2, a2 = q.reshape(-1, 7 + n), v.reshape(-1, 6 + n), a.reshape(-1, 6 + n)
+        B = q2.shape[0]
+        c = self.joints._consts(q2.dtype, q2.device)
+        R = quaternion_matrix(q2[:, 3:7])
+        g = c.gravity if gravity else torch.zeros_like(c.gravity)
+        g_base = (R.transpose(1, 2) @ g).contiguous()  # (B, 3) gravity in base axes
+        Y = q2.new_zeros(B, 6 + n, self.n_params)
+        base = (v2[:, :3], v2[:, 3:6], a2[:, :6], g_base)
+        floating_regressor_into(Y, base, q2[:, 7:], v2[:, 6:], a2[:, 6:], c, self.joints.friction)
+        self.joints._joint_terms(Y[:, 6:, 10:], v2[:, 6:], a2[:, 6:])
+        return Y.reshape(*batch, 6 + n, self.n_params)
+
+    def regressor(self, q, v, a) -> torch.Tensor:
+        """The floating-base regressor: ``[base wrench; joint torques] = Y(q, v, a) @ theta``.
+
+        Args:
+            q: ``(*batch, 7 + n_dof)`` base position (m), base quaternion ``(x, y, z, w)``,
+                joint positions (rad or m).
+            v: ``(*batch, 6 + n_dof)`` base linear and angular velocity in base axes (m/s,
+                rad/s), joint velocities.
+            a: ``(*batch, 6 + n_dof)`` their time derivatives.
+
+        Returns:
+            ``(*batch, 6 + n_dof, n_params)`` in the inputs' dtype and device (float64 for
+            non-tensor input); differentiable with respect to q, v and a. Rows: the base's
+            force (N) and moment (N m) at its origin in base axes, then the joint torques.
+
+        Raises:
+            ValueError: on wrong shapes, mismatched devices, NaN or infinite entries, or a base
+                quaternion whose norm is not 1 (within 1e-3; it is normalised otherwise).
+        """
+        return self._regressor(*self._check(q, v, a))
+
+    def _check_theta(self, theta, like: torch.Tensor) -> torch.Tensor:
+        theta = as_tensor(theta, name="theta").to(like)
+        if theta.shape != (self.n_params,):
+            raise ValueError(f"theta must have shape ({self.n_params},), got {tuple(theta.shape)}")
+        return theta
+
+    def inverse_dynamics(self, q, v, a, theta) -> torch.Tensor:
+        """``Y(q, v, a) @ theta``: ``(*batch, 6 + n_dof)``, the base wrench (what contacts and
+        supports must supply) and the joint torques."""
+        Y = self.regressor(q, v, a)
+        return Y @ self._check_theta(theta, Y)
+
+    def mass_matrix(self, q, theta=None) -> torch.Tensor:
+        """The joint-space inertia matrix ``M(q)``, ``(*batch, 6 + n_dof, 6 + n_dof)``, for
+        ``theta`` (default `nominal_theta`), in the velocity coordinates of the module. An
+        armature term adds to the joints' diagonal."""
+        q = self._check_q(q)
+        theta = self._check_theta(self.nominal_theta if theta is None else theta, q)
+        n, batch = self.n_dof, q.shape[:-1]
+        eye = torch.eye(6 + n, dtype=q.dtype, device=q.device)
+        acc = torch.cat([eye, torch.zeros_like(eye[:1])])  # (7 + n, 6 + n): each unit, then none
+        k = acc.shape[0]
+        q3 = q.reshape(-1, 1, 7 + n).expand(-1, k, 7 + n)
+        acc3 = acc.expand(q3.shape[0], k, 6 + n)
+        tau = self._regressor(q3, torch.zeros_like(acc3), acc3, gravity=False) @ theta
+        M = (tau[:, :-1] - tau[:, -1:]).transpose(1, 2)  # column j: tau(e_j) - tau(0)
+        return M.reshape(*batch, 6 + n, 6 + n)
