@@ -25,6 +25,7 @@ import torch
 
 from .._validation import as_tensor
 from ._inputs import check_state
+from ._kinematics import body_poses
 from ._model import RigidBodyModel
 from ._parameters import INERTIAL_NAMES
 from ._rnea import floating_regressor_into
@@ -221,3 +222,67 @@ class FloatingBaseModel:
         tau = self._regressor(q3, torch.zeros_like(acc3), acc3, gravity=False) @ theta
         M = (tau[:, :-1] - tau[:, -1:]).transpose(1, 2)  # column j: tau(e_j) - tau(0)
         return M.reshape(*batch, 6 + n, 6 + n)
+
+    # ------------------------------------------------------------------ contacts
+    def frame_jacobian(self, q, frames: str | Sequence[str]) -> torch.Tensor:
+        """The Jacobians of frames (feet, sensors) in world axes: ``J v`` is the frame origin's
+        linear velocity and the frame's angular velocity in the world frame, so that a wrench
+        ``w = [f; m]`` applied there (force in N and moment in N m about the frame origin,
+        world axes) enters the generalised forces as ``J^T w``; Pinocchio's
+        ``LOCAL_WORLD_ALIGNED`` frame Jacobian.
+
+        Args:
+            q: ``(*batch, 7 + n_dof)``, as in `regressor`.
+            frames: a frame of the description (`RigidBodyModel.frame_names`) or several.
+
+        Returns:
+            ``(*batch, 6, 6 + n_dof)``, or ``(*batch, n_frames, 6, 6 + n_dof)`` for a sequence.
+
+        Raises:
+            ValueError: on a bad q or an unknown frame.
+        """
+        q = self._check_q(q)
+        single = isinstance(frames, str)
+        names = [frames] if single else list(frames)
+        index = self.joints._frame_index(names)
+        tree, n = self.joints._tree, self.n_dof
+        qj = q[..., 7:]
+        c = self.joints._consts(q.dtype, q.device)
+        kw = {"dtype": q.dtype, "device": q.device}
+        rots, poss = body_poses(
+            qj, c, [tree.frame_owner[f] for f in index if tree.frame_owner[f] >= 0]
+        )
+        R_wb = quaternion_matrix(q[..., 3:7])
+        batch = q.shape[:-1]
+        out = []
+        for f in index:
+            j = tree.frame_owner[f]
+            pos = torch.as_tensor(tree.frame_pos[f], **kw)
+            p = pos.expand(*batch, 3) if j < 0 else poss[j] + rots[j] @ pos
+            lin = [torch.eye(3, **kw).expand(*batch, 3, 3), -_skew(p)]
+            ang = [torch.zeros(*batch, 3, 3, **kw), torch.eye(3, **kw).expand(*batch, 3, 3)]
+            chain = set(c.ancestors[j]) if j >= 0 else set()
+            for k in range(n):
+                if k not in chain:
+                    zero = torch.zeros(*batch, 3, 1, **kw)
+                    lin.append(zero)
+                    ang.append(zero)
+                    continue
+                z = rots[k] @ c.axis[k]  # the joint's axis in base axes
+                if c.revolute[k]:
+                    o = poss[k] + rots[k] @ c.axis_point[k]  # a point on the axis
+                    lin.append(torch.linalg.cross(z, p - o)[..., None])
+                    ang.append(z[..., None])
+                else:
+                    lin.append(z[..., None])
+                    ang.append(torch.zeros_like(z)[..., None])
+            J = torch.cat([torch.cat(lin, -1), torch.cat(ang, -1)], -2)  # base axes
+            out.append(torch.cat([R_wb @ J[..., :3, :], R_wb @ J[..., 3:, :]], -2))
+        return out[0] if single else torch.stack(out, -3)
+
+
+def _skew(p: torch.Tensor) -> torch.Tensor:
+    """``[p]x``, ``(..., 3, 3)``, of ``p (..., 3)``."""
+    x, y, z = p.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(*p.shape[:-1], 3, 3)

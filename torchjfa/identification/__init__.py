@@ -23,7 +23,9 @@ spread of the unconstrained estimate. `evaluate` judges an identified model on o
 (``torchjfa evaluate``), against the measured torque as `validate` does (`measured_torque`);
 `identify_payload` identifies a body fixed to a link (``torchjfa payload``);
 `identify_drive_gains` the per-joint drive gains from a payload of known mass (``torchjfa
-payload --mass``).
+payload --mass``). `contact_equations` gives the regression rows of a floating-base robot
+(`torchjfa.dynamics.FloatingBaseModel`) in contact: with measured contact wrenches, the base
+rows alone, or the contact forces projected out.
 """
 
 from ..report._result import IdentificationResult as IdentificationResult
@@ -31,6 +33,7 @@ from ._bias import correct_bias as correct_bias
 from ._bias import signal_bootstrap as signal_bootstrap
 from ._bias import simex_bias as simex_bias
 from ._consistent import make_consistent as make_consistent
+from ._contacts import contact_equations as contact_equations
 from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
 from ._fit import fit as fit
