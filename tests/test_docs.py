@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.metadata
 import json
 import os
 import re
@@ -80,6 +81,27 @@ def test_the_report_pages_own_folder_example_runs_as_written(tmp_path, monkeypat
     exec(compile(block, "report.md", "exec"), {"__name__": "__docs__"})
     manifest = json.loads((tmp_path / "my_result" / "manifest.json").read_text())
     assert manifest["command"] == "my_script.py" and set(manifest["files"]) == {"notes.txt"}
+
+
+def test_the_floating_base_pages_examples_run_as_written(capsys):
+    try:
+        importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    page = DOCS / "floating-base.md"
+    namespace: dict = {"__name__": "__docs__"}
+    for k, code in enumerate(python_blocks(page)):
+        exec(compile(code, f"{page}, python block {k + 1}", "exec"), namespace)
+    out = capsys.readouterr().out
+    standing = float(out.split("the ground carries ")[1].split()[0])
+    identified = float(out.split("from the base rows: ")[1].split()[0])
+    # the URDF's masses summed here, independently of the library
+    import xml.etree.ElementTree as ET
+
+    urdf = ET.parse(namespace["path"]).getroot()
+    total = sum(float(m.get("value")) for m in urdf.iter("mass"))
+    assert standing == pytest.approx(total, abs=1e-3)  # printed to 3 decimals
+    assert identified == pytest.approx(total, abs=1e-3)
 
 
 def test_the_pages_describe_the_library_as_it_is_now():

@@ -76,7 +76,9 @@ def contact_equations(
 
     Args:
         model: the robot.
-        q, v, a: ``(B, 7 + n)``, ``(B, 6 + n)``, ``(B, 6 + n)`` (`FloatingBaseModel.regressor`).
+        q: ``(B, 7 + n)`` base pose and joint positions (`FloatingBaseModel.regressor`).
+        v: ``(B, 6 + n)`` base twist in base axes and joint velocities.
+        a: ``(B, 6 + n)`` their time derivatives.
         tau: ``(B, n)`` joint torques, N m (N); unused by ``rows="base"`` (may be None there).
         contacts: frame name -> ``(B,)`` 0/1 flags: which frames touch the ground when
             (``"projected"``).
