@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -259,3 +260,71 @@ def test_frame_jacobians_equal_pinocchio(name, frames):
             expected = pin.getFrameJacobian(ref.pm, ref.pd, fid, pin.LOCAL_WORLD_ALIGNED)
             # products of a few rotations of unit size: round-off of order 1e-15
             np.testing.assert_allclose(J[b, k], expected[:, ref.iv], rtol=0, atol=1e-12)
+
+
+def _go2_mjcf(mujoco, path: str, scenery: bool) -> str:
+    """Go2's MJCF (MuJoCo's URDF importer) with a free joint on its base, placed and turned
+    away from the origin; with ``scenery``, a heavy table beside it."""
+    from torchjfa.dynamics._mjcf import mjcf_from_urdf
+
+    spec = mujoco.MjSpec.from_string(mjcf_from_urdf(Path(path).read_text()))
+    base = spec.worldbody.first_body()
+    base.add_freejoint(name="root")
+    base.pos = [0.3, -0.2, 0.45]
+    base.quat = [0.9, 0.1, 0.3, -0.2]
+    if scenery:
+        table = spec.worldbody.add_body(name="table", pos=[2.0, 0.0, 0.5])
+        table.add_geom(size=[0.5, 0.5, 0.05], type=mujoco.mjtGeom.mjGEOM_BOX, mass=30.0)
+    return spec.to_xml()
+
+
+def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matrix():
+    mujoco = pytest.importorskip("mujoco")
+    path = _erd(LEGGED["go2"])
+    text = _go2_mjcf(mujoco, path, scenery=True)
+    model = FloatingBaseModel.from_mjcf(text)
+    urdf = FloatingBaseModel.from_urdf(path)
+    assert model.base_name == "base" and model.joint_names == urdf.joint_names
+    # MuJoCo writes the MJCF's numbers to 6 significant digits (principal inertias and
+    # their quaternions): the MJCF's inertials agree with the URDF's to about 1e-6 of each body's
+    # largest value; the exact check is the mass matrix of the same MJCF below
+    scale = float(urdf.nominal_theta.abs().max())
+    torch.testing.assert_close(model.nominal_theta, urdf.nominal_theta, rtol=0, atol=1e-6 * scale)
+    q, v, a = _state(model.n_dof, 3, seed=8)
+    Y_urdf = urdf.regressor(q, v, a)
+    torch.testing.assert_close(model.regressor(q, v, a), Y_urdf, rtol=1e-12, atol=1e-12)
+
+    mj = mujoco.MjModel.from_xml_string(_go2_mjcf(mujoco, path, scenery=False))
+    data = mujoco.MjData(mj)
+    dof = np.array([*range(6), *(mj.jnt_dofadr[mj.joint(n).id] for n in model.joint_names)])
+    adr = [mj.jnt_qposadr[mj.joint(n).id] for n in model.joint_names]
+    M = model.mass_matrix(q).numpy()
+    for b in range(q.shape[0]):
+        data.qpos[:3] = q[b, :3]
+        data.qpos[3:7] = q[b, [6, 3, 4, 5]]
+        data.qpos[adr] = q[b, 7:]
+        mujoco.mj_forward(mj, data)
+        full = np.zeros((mj.nv, mj.nv))
+        mujoco.mj_fullM(mj, data, full)
+        T = np.eye(6 + model.n_dof)
+        T[:3, :3] = data.xmat[mj.body("base").id].reshape(3, 3)
+        expected = T.T @ full[np.ix_(dof, dof)] @ T
+        np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def test_an_mjcf_without_one_free_joint_is_refused():
+    mujoco = pytest.importorskip("mujoco")
+    path = _erd(LEGGED["go2"])
+    from torchjfa.dynamics._mjcf import mjcf_from_urdf
+
+    fixed = mjcf_from_urdf(Path(path).read_text())
+    with pytest.raises(ValueError, match="exactly one <freejoint>.*found 0"):
+        FloatingBaseModel.from_mjcf(fixed)
+    spec = mujoco.MjSpec.from_string(_go2_mjcf(mujoco, path, scenery=False))
+    box = spec.worldbody.add_body(name="box")
+    box.add_freejoint(name="box_free")
+    box.add_geom(size=[0.1, 0.1, 0.1], type=mujoco.mjtGeom.mjGEOM_BOX)
+    with pytest.raises(ValueError, match=r"found 2: \['root', 'box_free'\]"):
+        FloatingBaseModel.from_mjcf(spec.to_xml())
+    with pytest.raises(ValueError, match="FloatingBaseModel.from_mjcf"):
+        RigidBodyModel.from_mjcf(_go2_mjcf(mujoco, path, scenery=False))

@@ -80,8 +80,9 @@ def _check_mjcf(model) -> None:
         if jt in (int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)):
             kind = "free" if jt == int(mujoco.mjtJoint.mjJNT_FREE) else "ball"
             raise ValueError(
-                f"joint {model.joint(j).name!r} is a {kind} joint: floating bases and ball joints "
-                "are not supported; use hinge and slide joints on a fixed base"
+                f"joint {model.joint(j).name!r} is a {kind} joint: ball joints are not "
+                "supported, and a floating base is read by FloatingBaseModel.from_mjcf; use "
+                "hinge and slide joints on a fixed base here"
             )
         if not model.joint(j).name:
             raise ValueError(f"joint {j} has no name; every joint needs a unique name")
