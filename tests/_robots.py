@@ -14,3 +14,21 @@ TWO_LINK = """<?xml version="1.0"?>
     <origin xyz="0.4 0 0"/><axis xyz="0 1 0"/></joint>
 </robot>
 """
+
+
+def erd_path(relative: str) -> str:
+    """A robot file of the installed example-robot-data; the test is skipped without it."""
+    import importlib.metadata
+
+    import pytest
+
+    import torchjfa.robots
+
+    try:
+        importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    try:
+        return torchjfa.robots.example_robot_data_path(relative)
+    except FileNotFoundError:
+        pytest.skip(f"this example-robot-data has no {relative}")

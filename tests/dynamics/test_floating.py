@@ -8,15 +8,14 @@ example-robot-data.
 
 from __future__ import annotations
 
-import importlib.metadata
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from _robots import erd_path
 
-import torchjfa
 from torchjfa.dynamics import FloatingBaseModel, RigidBodyModel
 from torchjfa.dynamics._floating import quaternion_matrix
 from torchjfa.dynamics._mjcf import strip_urdf_for_mujoco
@@ -28,17 +27,6 @@ LEGGED = {
     "talos": "talos_data/robots/talos_reduced.urdf",
     "g1": "g1_description/urdf/g1_29dof_rev_1_0.urdf",
 }
-
-
-def _erd(relative: str) -> str:
-    try:
-        importlib.metadata.distribution("example-robot-data")
-    except importlib.metadata.PackageNotFoundError:
-        pytest.skip("example-robot-data is not installed")
-    try:
-        return torchjfa.robots.example_robot_data_path(relative)
-    except FileNotFoundError:
-        pytest.skip(f"this example-robot-data has no {relative}")
 
 
 def _state(n: int, batch: int, seed: int):
@@ -93,7 +81,7 @@ class _Pinocchio:
 @pytest.mark.parametrize("name", list(LEGGED))
 def test_free_flyer_regressor_equals_pinocchio(name):
     pin = pytest.importorskip("pinocchio")
-    path = _erd(LEGGED[name])
+    path = erd_path(LEGGED[name])
     model = FloatingBaseModel.from_urdf(path, friction=())
     ref = _Pinocchio(pin, path, model)
     np.testing.assert_allclose(
@@ -118,7 +106,7 @@ def test_free_flyer_regressor_equals_pinocchio(name):
 
 def test_free_flyer_mass_matrix_equals_mujoco():
     mujoco = pytest.importorskip("mujoco")
-    path = _erd(LEGGED["solo12"])
+    path = erd_path(LEGGED["solo12"])
     model = FloatingBaseModel.from_urdf(path, friction=())
     root = strip_urdf_for_mujoco(
         ET.parse(path).getroot(), fusestatic="false", balanceinertia="false"
@@ -150,7 +138,7 @@ def test_free_flyer_mass_matrix_equals_mujoco():
 
 def test_the_joint_rows_of_a_base_at_rest_are_the_fixed_base_regressor():
     """With the base still and level, the joint rows are the fixed-base model's."""
-    path = _erd(LEGGED["solo12"])
+    path = erd_path(LEGGED["solo12"])
     model = FloatingBaseModel.from_urdf(path, friction=("viscous", "coulomb", "offset"))
     fixed = RigidBodyModel.from_urdf(path, friction=("viscous", "coulomb", "offset"))
     q, v, a = _state(model.n_dof, 5, seed=3)
@@ -168,7 +156,7 @@ def test_the_joint_rows_of_a_base_at_rest_are_the_fixed_base_regressor():
 def test_base_rows_give_total_mass_and_centre_of_mass_from_statics():
     """At rest, the base's force rows carry the robot's whole weight: the sum of the URDF's
     masses (read here from the file) times gravity in base axes."""
-    path = _erd(LEGGED["go2"])
+    path = erd_path(LEGGED["go2"])
     model = FloatingBaseModel.from_urdf(path, friction=())
     q, _, _ = _state(model.n_dof, 3, seed=4)
     zeros = np.zeros((3, 6 + model.n_dof))
@@ -181,7 +169,7 @@ def test_base_rows_give_total_mass_and_centre_of_mass_from_statics():
 
 
 def test_bad_floating_base_inputs_are_refused():
-    path = _erd(LEGGED["solo12"])
+    path = erd_path(LEGGED["solo12"])
     model = FloatingBaseModel.from_urdf(path)
     q, v, a = _state(model.n_dof, 2, seed=5)
     with pytest.raises(ValueError, match=r"q must have shape \(\*batch, 19\)"):
@@ -201,7 +189,7 @@ def test_bad_floating_base_inputs_are_refused():
 def test_floating_regressor_gradients_equal_finite_differences():
     """Autograd's directional derivative of a random weighting of Y against central
     differences (step 1e-6: truncation ~1e-12 and round-off ~1e-10 relative)."""
-    path = _erd(LEGGED["solo12"])
+    path = erd_path(LEGGED["solo12"])
     model = FloatingBaseModel.from_urdf(path, friction=("viscous", "armature"))
     x = [torch.as_tensor(v) for v in _state(model.n_dof, 2, seed=6)]
     gen = torch.Generator().manual_seed(0)
@@ -244,7 +232,7 @@ def test_floating_regressor_gradients_equal_finite_differences():
 )
 def test_frame_jacobians_equal_pinocchio(name, frames):
     pin = pytest.importorskip("pinocchio")
-    path = _erd(LEGGED[name])
+    path = erd_path(LEGGED[name])
     model = FloatingBaseModel.from_urdf(path)
     ref = _Pinocchio(pin, path, model)
     q, _, _ = _state(model.n_dof, 3, seed=7)
@@ -280,7 +268,7 @@ def _go2_mjcf(mujoco, path: str, scenery: bool) -> str:
 
 def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matrix():
     mujoco = pytest.importorskip("mujoco")
-    path = _erd(LEGGED["go2"])
+    path = erd_path(LEGGED["go2"])
     text = _go2_mjcf(mujoco, path, scenery=True)
     model = FloatingBaseModel.from_mjcf(text)
     urdf = FloatingBaseModel.from_urdf(path)
@@ -312,9 +300,21 @@ def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matr
         np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
 
 
+def test_an_mjcf_file_with_a_free_joint_reads_as_its_text(tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    path = erd_path(LEGGED["go2"])
+    text = _go2_mjcf(mujoco, path, scenery=False)
+    (tmp_path / "go2.xml").write_text(text)
+    from_file = FloatingBaseModel.from_mjcf(tmp_path / "go2.xml")
+    assert from_file.joints.source_path == str(tmp_path / "go2.xml")
+    torch.testing.assert_close(
+        from_file.nominal_theta, FloatingBaseModel.from_mjcf(text).nominal_theta, rtol=0, atol=0
+    )
+
+
 def test_an_mjcf_without_one_free_joint_is_refused():
     mujoco = pytest.importorskip("mujoco")
-    path = _erd(LEGGED["go2"])
+    path = erd_path(LEGGED["go2"])
     from torchjfa.dynamics._mjcf import mjcf_from_urdf
 
     fixed = mjcf_from_urdf(Path(path).read_text())

@@ -9,13 +9,11 @@ equation of motion ``M a + h = S^T tau + J_c^T f``.
 
 from __future__ import annotations
 
-import importlib.metadata
-
 import numpy as np
 import pytest
 import torch
+from _robots import erd_path
 
-import torchjfa
 from torchjfa.dynamics import FloatingBaseModel
 from torchjfa.identification import contact_equations
 
@@ -25,11 +23,7 @@ FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
 @pytest.fixture(scope="module")
 def go2():
     pin = pytest.importorskip("pinocchio")
-    try:
-        importlib.metadata.distribution("example-robot-data")
-        path = torchjfa.robots.example_robot_data_path("go2_description/urdf/go2.urdf")
-    except (importlib.metadata.PackageNotFoundError, FileNotFoundError):
-        pytest.skip("example-robot-data with the Go2 is not installed")
+    path = erd_path("go2_description/urdf/go2.urdf")
     model = FloatingBaseModel.from_urdf(path, friction=())
     pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
     rng = np.random.default_rng(11)

@@ -9,6 +9,7 @@ URDF side. Use `RigidBodyModel.from_mjcf` rather than this module.
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 
 import numpy as np
@@ -274,3 +275,42 @@ def mjcf_from_urdf(text: str) -> str:
         return spec.to_xml()
     except Exception as exc:  # MuJoCo raises ValueError, and others for some specs
         raise ValueError(f"MuJoCo cannot compile this URDF: {exc}") from None
+
+
+def fixed_base_mjcf(text: str, path: str | None) -> tuple[str, str]:
+    """The MJCF with its free joint removed and the base body placed at the world origin (so
+    that the world frame is the base frame), other top-level bodies and keyframes dropped;
+    and the base's name. Asset folders become absolute, so that the text compiles alone."""
+    import mujoco
+
+    try:
+        spec = mujoco.MjSpec.from_file(path) if path else mujoco.MjSpec.from_string(text)
+    except Exception as exc:  # MuJoCo's parser: ValueError with its own message
+        raise ValueError(f"MuJoCo cannot read this MJCF: {' '.join(str(exc).split())}") from None
+    free = [j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_FREE]
+    if len(free) != 1:
+        raise ValueError(
+            f"a floating-base MJCF needs exactly one <freejoint> (on the base body), found "
+            f"{len(free)}" + (f": {[j.name or '(unnamed)' for j in free]}" if free else "")
+        )
+    base = free[0].parent
+    if base.parent is None or base.parent.name != spec.worldbody.name:
+        raise ValueError(f"the free joint's body {base.name!r} must be a body of the world")
+    spec.delete(free[0])
+    base.pos = [0.0, 0.0, 0.0]
+    base.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    base.quat = [1.0, 0.0, 0.0, 0.0]
+    for body in list(spec.worldbody.bodies):
+        if body.name != base.name:
+            spec.delete(body)
+    for key in list(spec.keys):
+        spec.delete(key)
+    if path:
+        folder = os.path.dirname(os.path.abspath(path))
+        spec.meshdir = os.path.join(folder, spec.meshdir or "")
+        spec.texturedir = os.path.join(folder, spec.texturedir or "")
+    try:
+        spec.compile()
+        return spec.to_xml(), base.name or "base"
+    except Exception as exc:
+        raise ValueError(f"MuJoCo cannot compile this MJCF: {' '.join(str(exc).split())}") from None
