@@ -102,6 +102,9 @@ def test_the_floating_base_pages_examples_run_as_written(capsys):
     total = sum(float(m.get("value")) for m in urdf.iter("mass"))
     assert standing == pytest.approx(total, abs=1e-3)  # printed to 3 decimals
     assert identified == pytest.approx(total, abs=1e-3)
+    simulated, found = (float(x) for x in re.findall(r"(?:simulated|identified) ([\d.]+) kg", out))
+    assert found == pytest.approx(simulated, abs=1e-4)  # printed to 4 decimals
+    assert abs(simulated - total) > 1e-3  # the simulated robot is not the description
 
 
 def test_the_pages_describe_the_library_as_it_is_now():

@@ -84,8 +84,10 @@ def contact_equations(
             (``"projected"``).
         wrenches: frame name -> ``(B, 3)`` measured force (N) or ``(B, 6)`` force and moment
             (N, N m, about the frame origin), in world axes (``"all"``, ``"base"``).
-        flat: the contact frames that also transmit a moment (flat feet, a hand gripping): their
-            projection removes six directions, a point contact's three.
+        flat: the contact frames that also transmit a moment (flat feet, a hand gripping, and a
+            spherical foot whose frame is the sphere's centre: the ground pushes at its bottom,
+            so the wrench about the centre has a moment, the radius times the tangential
+            force): their projection removes six directions, a point contact's three.
         rows: ``"all"``, ``"base"``, ``"projected"`` (the module), or ``"auto"``: ``"all"``
             with wrenches, ``"projected"`` with contact flags only.
 

@@ -1,0 +1,319 @@
+"""A legged robot standing on the ground and moving its body, simulated in MuJoCo.
+
+`simulate_legged` compiles a floating-base URDF (example-robot-data's quadrupeds and humanoids,
+or your own) with a free joint on its root link, a sphere at each foot frame and a floor, and
+holds a standing pose with joint PD control while every joint follows a slow sum of sines
+around it; the feet stay on the ground (mostly) while the body sways. It records what a
+legged robot's log holds, in the floating-base state convention of
+`torchjfa.dynamics.FloatingBaseModel`: the base pose and twist, joint positions, velocities
+and torques, which feet touch the ground, and the wrench each foot receives from it
+(``mj_contactForce``, in world axes, the moment taken about the foot frame's origin). The
+simulated robot can differ from the description (``perturb``), so that identification has
+something to find; `LeggedLog.theta` is its true parameter vector.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from .._util import atomic_file, progress_bar
+from ..dynamics import FloatingBaseModel
+from ..dynamics._mjcf import strip_urdf_for_mujoco
+from ..dynamics._tree import quat_matrix, transform_inertial_np
+
+__all__ = ["LeggedLog", "simulate_legged"]
+
+_TIMESTEP = 0.001  # s
+_KP, _KD = 100.0, 3.0  # N m/rad, N m s/rad: stiff enough to stand, soft enough to sway
+_RAMP = 2.0  # s over which the motion grows from the standing pose
+_SETTLE = 2.5  # s simulated before recording
+
+
+@dataclass
+class LeggedLog:
+    """A legged robot's simulated log.
+
+    Attributes:
+        t: ``(T,)`` s.
+        q: ``(T, 7 + n)`` base position (m) and quaternion ``(x, y, z, w)``, joint positions.
+        v: ``(T, 6 + n)`` base linear and angular velocity in base axes, joint velocities.
+        a: ``(T, 6 + n)`` their time derivatives, as the simulator computed them.
+        tau: ``(T, n)`` joint torques, N m.
+        contact: ``(T, n_feet)`` 1 where the foot touches the ground.
+        wrench: ``(T, n_feet, 6)`` the ground's force (N) and moment about the foot frame's
+            origin (N m) on each foot, world axes.
+        joint_names, feet: the columns' names.
+        theta: the simulated robot's parameters in `FloatingBaseModel`'s layout (no joint
+            terms).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    tau: np.ndarray
+    contact: np.ndarray
+    wrench: np.ndarray
+    joint_names: tuple[str, ...]
+    feet: tuple[str, ...]
+    theta: np.ndarray
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The log as named columns: ``t``, ``base_x .. base_qw``, ``base_vx .. base_wz``,
+        ``q_<joint>``, ``qd_<joint>``, ``tau_<joint>``, ``contact_<foot>``, ``f_<foot>_x/y/z``
+        and ``m_<foot>_x/y/z``."""
+        out = {"t": self.t}
+        base = ("x", "y", "z", "qx", "qy", "qz", "qw")
+        out.update({f"base_{k}": self.q[:, i] for i, k in enumerate(base)})
+        twist = ("vx", "vy", "vz", "wx", "wy", "wz")
+        out.update({f"base_{k}": self.v[:, i] for i, k in enumerate(twist)})
+        for i, j in enumerate(self.joint_names):
+            out[f"q_{j}"] = self.q[:, 7 + i]
+            out[f"qd_{j}"] = self.v[:, 6 + i]
+            out[f"tau_{j}"] = self.tau[:, i]
+        for k, foot in enumerate(self.feet):
+            out[f"contact_{foot}"] = self.contact[:, k]
+            for i, axis in enumerate("xyz"):
+                out[f"f_{foot}_{axis}"] = self.wrench[:, k, i]
+                out[f"m_{foot}_{axis}"] = self.wrench[:, k, 3 + i]
+        return out
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the columns as ``.csv`` (a header line, then one line per sample) or ``.npz``
+        (one array per column), whole or not at all."""
+        cols = self.columns()
+        suffix = os.fspath(path).lower().rsplit(".", 1)[-1]
+        if suffix not in ("csv", "npz"):
+            raise ValueError(f"a legged log is written as .csv or .npz, got {os.fspath(path)!r}")
+        with atomic_file(path) as tmp:
+            if suffix == "npz":
+                with open(tmp, "wb") as fh:
+                    np.savez(fh, **cols)
+            else:
+                table = np.column_stack(list(cols.values()))
+                np.savetxt(
+                    tmp, table, delimiter=",", header=",".join(cols), comments="", fmt="%.17g"
+                )
+
+
+def _spec(path: str, feet: Sequence[str], radius: float) -> mujoco.MjSpec:
+    root = strip_urdf_for_mujoco(
+        ET.parse(path).getroot(), fusestatic="false", balanceinertia="false"
+    )
+    spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+    base = spec.worldbody.first_body()
+    base.add_freejoint(name="torchjfa_base")
+    bodies = {b.name: b for b in spec.bodies}
+    missing = [f for f in feet if f not in bodies]
+    if missing:
+        raise ValueError(f"no link named {missing} in {path!r} (the feet must be links)")
+    for foot in feet:
+        bodies[foot].add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=0.0)
+    spec.worldbody.add_geom(
+        name="torchjfa_floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[10, 10, 0.1]
+    )
+    for joint in spec.joints:
+        if joint.type == mujoco.mjtJoint.mjJNT_HINGE or joint.type == mujoco.mjtJoint.mjJNT_SLIDE:
+            motor = spec.add_actuator()
+            motor.name = f"torchjfa_motor_{joint.name}"
+            motor.target = joint.name
+            motor.trntype = mujoco.mjtTrn.mjTRN_JOINT
+    spec.option.timestep = _TIMESTEP
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    # the contact forces solved to round-off, so that the log's equations of motion hold to
+    # about 1e-9 of its forces (MuJoCo's default tolerance leaves about 1e-5)
+    spec.option.tolerance = 1e-14
+    spec.option.iterations = 200
+    return spec
+
+
+def _perturb(spec: mujoco.MjSpec, scale: float, rng: np.random.Generator) -> mujoco.MjModel:
+    """Compile ``spec`` with each body's mass and principal inertias scaled by ``1 + scale *
+    U(-1, 1)`` and its centre of mass shifted by ``scale * 5 cm * N(0, 1)`` per axis (a
+    physical body stays physical). The new inertials go into the spec and it is compiled
+    again, so that MuJoCo's compile-time flags (an inertial frame equal to the body frame)
+    follow them."""
+    mj = spec.compile()
+    for b in range(1, mj.nbody):
+        if mj.body_mass[b] <= 0:
+            continue
+        body = spec.body(mj.body(b).name)
+        body.mass = float(mj.body_mass[b]) * (1.0 + scale * rng.uniform(-1, 1))
+        body.inertia = np.array(mj.body_inertia[b]) * (1.0 + scale * rng.uniform(-1, 1))
+        body.iquat = np.array(mj.body_iquat[b])
+        body.fullinertia = np.full(6, np.nan)
+        body.ipos = np.array(mj.body_ipos[b]) + scale * 0.05 * rng.normal(size=3)
+        body.explicitinertial = True
+    return spec.compile()
+
+
+def _theta(mj: mujoco.MjModel, model: FloatingBaseModel) -> np.ndarray:
+    """The simulated robot's parameters in the model's layout: each body's inertial about its
+    frame, summed into the moving body (or the base) that carries it."""
+    tree = model.joints._tree
+    owner = dict(zip(tree.frame_names, tree.frame_owner, strict=True))
+    where = dict(zip(tree.frame_names, range(len(tree.frame_names)), strict=True))
+    base = np.zeros(10)
+    bodies = np.zeros((model.n_dof, 10))
+    for b in range(1, mj.nbody):
+        name = mj.body(b).name
+        if name not in owner:
+            continue
+        m, c = float(mj.body_mass[b]), np.array(mj.body_ipos[b])
+        R = quat_matrix(mj.body_iquat[b])
+        Ic = R @ np.diag(mj.body_inertia[b]) @ R.T
+        own = np.array([m, 0, 0, 0, Ic[0, 0], Ic[0, 1], Ic[1, 1], Ic[0, 2], Ic[1, 2], Ic[2, 2]])
+        pi = transform_inertial_np(own, np.eye(3), c)  # about the body frame's origin
+        f = where[name]
+        pi = transform_inertial_np(pi, tree.frame_rot[f], tree.frame_pos[f])
+        if owner[name] < 0:
+            base += pi
+        else:
+            bodies[owner[name]] += pi
+    return np.concatenate([base, bodies.reshape(-1)])
+
+
+def _foot_wrenches(
+    mj: mujoco.MjModel, data: mujoco.MjData, foot_body: Mapping[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which feet touch, ``(n_feet,)``, and the ground's wrench on each, ``(n_feet, 6)``: force
+    and moment about the foot body's origin, world axes."""
+    on, wrench = np.zeros(len(foot_body)), np.zeros((len(foot_body), 6))
+    f6 = np.zeros(6)
+    for c in range(data.ncon):
+        con = data.contact[c]
+        for gid, sign in ((con.geom1, -1.0), (con.geom2, 1.0)):
+            k = foot_body.get(int(mj.geom_bodyid[gid]))
+            if k is None:
+                continue
+            mujoco.mj_contactForce(mj, data, c, f6)
+            f = sign * (con.frame.reshape(3, 3).T @ f6[:3])  # MuJoCo's: on geom2 from geom1
+            lever = con.pos - data.xpos[mj.geom_bodyid[gid]]
+            wrench[k, :3] += f
+            wrench[k, 3:] += np.cross(lever, f)
+            on[k] = 1.0
+    return on, wrench
+
+
+def simulate_legged(
+    robot: str | os.PathLike,
+    feet: Sequence[str],
+    stance: Mapping[str, float],
+    *,
+    seconds: float = 20.0,
+    rate: float = 200.0,
+    amplitude: float = 0.15,
+    foot_radius: float = 0.02,
+    perturb: float = 0.0,
+    truth_seed: int = 0,
+    seed: int = 0,
+    progress: bool = False,
+) -> LeggedLog:
+    """Simulate a legged robot standing and swaying its body (the module).
+
+    Args:
+        robot: a floating-base URDF (its root link is the base).
+        feet: the links that touch the ground (a sphere of ``foot_radius`` at each origin).
+        stance: joint -> position (rad) of the standing pose; joints not named stay at 0. The
+            base starts level, its height such that the lowest foot touches the ground.
+        seconds: recorded time, s (after 2.5 s of settling and growing motion).
+        rate: recorded samples per second (the simulation runs at 1 kHz).
+        amplitude: each joint's motion about the stance, rad: a sum of two sines with random
+            frequencies (0.2-0.8 Hz) and phases; hip joints (named ``*hip*``) move 40 % of it.
+        foot_radius: m.
+        perturb: the simulated robot's bodies differ from the description by this fraction
+            (masses and principal inertias scaled by up to ``1 +- perturb``, centres of mass
+            moved by ``perturb * 5 cm`` per axis); 0 simulates the description.
+        truth_seed: the perturbation's random seed (one robot per seed).
+        seed: the motion's random seed.
+        progress: show a progress bar.
+
+    Returns:
+        A `LeggedLog`.
+
+    Raises:
+        ValueError: on unknown feet or joints, non-positive times or rates, or a robot that
+            falls (its base below the feet's height).
+    """
+    if not seconds > 0 or not rate > 0 or rate > 1.0 / _TIMESTEP:
+        raise ValueError(f"seconds must be > 0 and rate in (0, 1000] Hz, got {seconds}, {rate}")
+    path = os.fspath(robot)
+    model = FloatingBaseModel.from_urdf(path, friction=())
+    unknown = sorted(set(stance) - set(model.joint_names))
+    if unknown:
+        raise ValueError(f"stance names {unknown}, which are not joints of {path!r}")
+    spec = _spec(path, tuple(feet), foot_radius)
+    mj = (
+        _perturb(spec, float(perturb), np.random.default_rng(truth_seed))
+        if perturb
+        else spec.compile()
+    )
+    rng = np.random.default_rng(seed)
+    data = mujoco.MjData(mj)
+    joints = model.joint_names
+    qadr = np.array([mj.jnt_qposadr[mj.joint(j).id] for j in joints])
+    vadr = np.array([mj.jnt_dofadr[mj.joint(j).id] for j in joints])
+    q0 = np.array([float(stance.get(j, 0.0)) for j in joints])
+    # the base's height: the lowest foot on the floor
+    feet_z = model.joints.forward_kinematics(q0, list(feet))[..., 2, 3].numpy()
+    data.qpos[:7] = [0.0, 0.0, foot_radius - float(feet_z.min()), 1.0, 0.0, 0.0, 0.0]
+    data.qpos[qadr] = q0
+    mujoco.mj_forward(mj, data)
+    freq = rng.uniform(0.2, 0.8, size=(len(joints), 2))
+    phase = rng.uniform(0.0, 2 * np.pi, size=(len(joints), 2))
+    amp = np.array([amplitude * (0.4 if "hip" in j else 1.0) for j in joints])
+    foot_body = {mj.body(f).id: k for k, f in enumerate(feet)}
+    every = max(1, round(1.0 / (rate * _TIMESTEP)))
+    n_steps = round((_SETTLE + seconds) / _TIMESTEP)
+    rec: dict[str, list] = {k: [] for k in ("t", "q", "v", "a", "tau", "on", "w")}
+    base_id = mj.body(spec.worldbody.first_body().name).id
+    with progress_bar(total=n_steps, desc="simulating", unit="step", enabled=progress) as bar:
+        for step in range(n_steps):
+            t = step * _TIMESTEP
+            ramp = min(1.0, t / _RAMP)
+            wave = 0.6 * np.sin(2 * np.pi * freq[:, 0] * t + phase[:, 0]) + 0.4 * np.sin(
+                2 * np.pi * freq[:, 1] * t + phase[:, 1]
+            )
+            data.ctrl[:] = _KP * (q0 + ramp * amp * wave - data.qpos[qadr]) - _KD * data.qvel[vadr]
+            mujoco.mj_step(mj, data)
+            bar.update(1)
+            if t < _SETTLE or step % every:
+                continue
+            mujoco.mj_forward(mj, data)  # accelerations and contacts of the recorded state
+            R = data.xmat[base_id].reshape(3, 3)
+            w = data.qvel[3:6].copy()
+            v_lin = R.T @ data.qvel[:3]  # MuJoCo's free joint: world-axis linear velocity
+            a_lin = R.T @ data.qacc[:3] - np.cross(w, v_lin)
+            rec["t"].append(t - _SETTLE)
+            rec["q"].append(
+                np.concatenate([data.qpos[:3], data.qpos[[4, 5, 6, 3]], data.qpos[qadr]])
+            )
+            rec["v"].append(np.concatenate([v_lin, w, data.qvel[vadr]]))
+            rec["a"].append(np.concatenate([a_lin, data.qacc[3:6], data.qacc[vadr]]))
+            rec["tau"].append(data.qfrc_actuator[vadr].copy())
+            on, wrench = _foot_wrenches(mj, data, foot_body)
+            rec["on"].append(on)
+            rec["w"].append(wrench)
+            if data.qpos[2] < foot_radius:
+                raise ValueError(
+                    f"the robot fell at t = {t - _SETTLE:.2f} s (base height {data.qpos[2]:.3f} m): "
+                    "lower the amplitude or check the stance"
+                )
+    return LeggedLog(
+        t=np.array(rec["t"]),
+        q=np.array(rec["q"]),
+        v=np.array(rec["v"]),
+        a=np.array(rec["a"]),
+        tau=np.array(rec["tau"]),
+        contact=np.array(rec["on"]),
+        wrench=np.array(rec["w"]),
+        joint_names=joints,
+        feet=tuple(feet),
+        theta=_theta(mj, model),
+    )
