@@ -15,6 +15,8 @@ periods; `signal_noise` estimates the sensors' noise from a raw log's spectrum a
 `propagated_noise` pushes it through the preparation and the regressor to the same noise for
 any log. `NpzArchive` and `NpzLog` are the one ``.npz`` reader (member by member, row range by
 row range); `log_sources` streams logs to `torchjfa.identification.stream_moments` through it.
+`LeggedLog` is a legged robot's log (a floating base, joints, contacts): `read_legged_log`
+reads it, `prepare_legged` filters and differentiates it.
 """
 
 from ._checks import LogProblem as LogProblem
@@ -36,6 +38,11 @@ from ._differentiate import Derivatives as Derivatives
 from ._differentiate import differentiate as differentiate
 from ._differentiate import edge_seconds as edge_seconds
 from ._differentiate import savgol_window as savgol_window
+from ._legged import BASE_POSE as BASE_POSE
+from ._legged import BASE_TWIST as BASE_TWIST
+from ._legged import LeggedLog as LeggedLog
+from ._legged import prepare_legged as prepare_legged
+from ._legged import read_legged_log as read_legged_log
 from ._log import JointLog as JointLog
 from ._log import read_log as read_log
 from ._log import write_log as write_log

@@ -15,7 +15,8 @@ their friction loss, damping, armature and a torque delay to such rollouts with 
 `PeriodNoise` (the noise from the repeated periods) live in `torchjfa.data` and are
 re-exported here; `load_log` reads a `SimulatedLog` file as one and any other log file as a
 `torchjfa.data.JointLog`. `simulate_legged` records a legged robot (a floating base, feet on
-the ground) standing and swaying its body, with its feet's contact wrenches (`LeggedLog`).
+the ground) standing and swaying its body, with its feet's contact wrenches
+(`SimulatedLeggedLog`, a `torchjfa.data.LeggedLog` with its truth).
 """
 
 from ..data import PeriodNoise as PeriodNoise
@@ -30,7 +31,7 @@ from ._generate import DEFAULT_N_SAMPLES as DEFAULT_N_SAMPLES
 from ._generate import DEFAULT_RATE as DEFAULT_RATE
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
-from ._legged import LeggedLog as LeggedLog
+from ._legged import SimulatedLeggedLog as SimulatedLeggedLog
 from ._legged import simulate_legged as simulate_legged
 from ._log import SensorNoise as SensorNoise
 from ._log import SimulatedLog as SimulatedLog

@@ -9,7 +9,7 @@ legged robot's log holds, in the floating-base state convention of
 and torques, which feet touch the ground, and the wrench each foot receives from it
 (``mj_contactForce``, in world axes, the moment taken about the foot frame's origin). The
 simulated robot can differ from the description (``perturb``), so that identification has
-something to find; `LeggedLog.theta` is its true parameter vector.
+something to find; `SimulatedLeggedLog.theta` is its true parameter vector.
 """
 
 from __future__ import annotations
@@ -17,17 +17,18 @@ from __future__ import annotations
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
-from .._util import atomic_file, progress_bar
+from .._util import progress_bar
+from ..data import LeggedLog
 from ..dynamics import FloatingBaseModel
 from ..dynamics._mjcf import strip_urdf_for_mujoco
 from ..dynamics._tree import quat_matrix, transform_inertial_np
 
-__all__ = ["LeggedLog", "simulate_legged"]
+__all__ = ["SimulatedLeggedLog", "simulate_legged"]
 
 _TIMESTEP = 0.001  # s
 _KP, _KD = 100.0, 3.0  # N m/rad, N m s/rad: stiff enough to stand, soft enough to sway
@@ -36,70 +37,16 @@ _SETTLE = 2.5  # s simulated before recording
 
 
 @dataclass
-class LeggedLog:
-    """A legged robot's simulated log.
+class SimulatedLeggedLog(LeggedLog):
+    """A `torchjfa.data.LeggedLog` from `simulate_legged`, with ``a`` (the simulator's
+    accelerations) and the simulated robot's truth.
 
     Attributes:
-        t: ``(T,)`` s.
-        q: ``(T, 7 + n)`` base position (m) and quaternion ``(x, y, z, w)``, joint positions.
-        v: ``(T, 6 + n)`` base linear and angular velocity in base axes, joint velocities.
-        a: ``(T, 6 + n)`` their time derivatives, as the simulator computed them.
-        tau: ``(T, n)`` joint torques, N m.
-        contact: ``(T, n_feet)`` 1 where the foot touches the ground.
-        wrench: ``(T, n_feet, 6)`` the ground's force (N) and moment about the foot frame's
-            origin (N m) on each foot, world axes.
-        joint_names, feet: the columns' names.
-        theta: the simulated robot's parameters in `FloatingBaseModel`'s layout (no joint
-            terms).
+        theta: the simulated robot's parameters in `torchjfa.dynamics.FloatingBaseModel`'s
+            layout without joint terms.
     """
 
-    t: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    tau: np.ndarray
-    contact: np.ndarray
-    wrench: np.ndarray
-    joint_names: tuple[str, ...]
-    feet: tuple[str, ...]
-    theta: np.ndarray
-
-    def columns(self) -> dict[str, np.ndarray]:
-        """The log as named columns: ``t``, ``base_x .. base_qw``, ``base_vx .. base_wz``,
-        ``q_<joint>``, ``qd_<joint>``, ``tau_<joint>``, ``contact_<foot>``, ``f_<foot>_x/y/z``
-        and ``m_<foot>_x/y/z``."""
-        out = {"t": self.t}
-        base = ("x", "y", "z", "qx", "qy", "qz", "qw")
-        out.update({f"base_{k}": self.q[:, i] for i, k in enumerate(base)})
-        twist = ("vx", "vy", "vz", "wx", "wy", "wz")
-        out.update({f"base_{k}": self.v[:, i] for i, k in enumerate(twist)})
-        for i, j in enumerate(self.joint_names):
-            out[f"q_{j}"] = self.q[:, 7 + i]
-            out[f"qd_{j}"] = self.v[:, 6 + i]
-            out[f"tau_{j}"] = self.tau[:, i]
-        for k, foot in enumerate(self.feet):
-            out[f"contact_{foot}"] = self.contact[:, k]
-            for i, axis in enumerate("xyz"):
-                out[f"f_{foot}_{axis}"] = self.wrench[:, k, i]
-                out[f"m_{foot}_{axis}"] = self.wrench[:, k, 3 + i]
-        return out
-
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the columns as ``.csv`` (a header line, then one line per sample) or ``.npz``
-        (one array per column), whole or not at all."""
-        cols = self.columns()
-        suffix = os.fspath(path).lower().rsplit(".", 1)[-1]
-        if suffix not in ("csv", "npz"):
-            raise ValueError(f"a legged log is written as .csv or .npz, got {os.fspath(path)!r}")
-        with atomic_file(path) as tmp:
-            if suffix == "npz":
-                with open(tmp, "wb") as fh:
-                    np.savez(fh, **cols)
-            else:
-                table = np.column_stack(list(cols.values()))
-                np.savetxt(
-                    tmp, table, delimiter=",", header=",".join(cols), comments="", fmt="%.17g"
-                )
+    theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _spec(path: str, feet: Sequence[str], radius: float) -> mujoco.MjSpec:
@@ -235,7 +182,7 @@ def simulate_legged(
         progress: show a progress bar.
 
     Returns:
-        A `LeggedLog`.
+        A `SimulatedLeggedLog`.
 
     Raises:
         ValueError: on unknown feet or joints, non-positive times or rates, or a robot that
@@ -305,15 +252,16 @@ def simulate_legged(
                     f"the robot fell at t = {t - _SETTLE:.2f} s (base height {data.qpos[2]:.3f} m): "
                     "lower the amplitude or check the stance"
                 )
-    return LeggedLog(
+    on, wrench = np.array(rec["on"]), np.array(rec["w"])
+    return SimulatedLeggedLog(
         t=np.array(rec["t"]),
         q=np.array(rec["q"]),
         v=np.array(rec["v"]),
         a=np.array(rec["a"]),
         tau=np.array(rec["tau"]),
-        contact=np.array(rec["on"]),
-        wrench=np.array(rec["w"]),
+        contact={foot: on[:, k] for k, foot in enumerate(feet)},
+        wrench={foot: wrench[:, k] for k, foot in enumerate(feet)},
         joint_names=joints,
-        feet=tuple(feet),
+        info={"robot": path, "perturb": float(perturb), "seed": seed, "rate_hz": rate},
         theta=_theta(mj, model),
     )
