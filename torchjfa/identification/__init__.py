@@ -33,7 +33,9 @@ from ._bias import correct_bias as correct_bias
 from ._bias import signal_bootstrap as signal_bootstrap
 from ._bias import simex_bias as simex_bias
 from ._consistent import make_consistent as make_consistent
+from ._contacts import consistent_floating as consistent_floating
 from ._contacts import contact_equations as contact_equations
+from ._contacts import contact_moments as contact_moments
 from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
 from ._fit import fit as fit

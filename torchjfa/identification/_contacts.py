@@ -21,9 +21,11 @@ from collections.abc import Collection, Mapping
 import torch
 
 from .._validation import as_tensor, check_finite
-from ..dynamics import FloatingBaseModel
+from ..dynamics import FloatingBaseModel, ParameterLayout
+from ..physical import DEFAULT_PARAMETRIZATION
+from ..stats import Moments
 
-__all__ = ["contact_equations", "ROWS"]
+__all__ = ["contact_equations", "contact_moments", "consistent_floating", "ROWS"]
 
 ROWS = ("auto", "all", "base", "projected")
 
@@ -137,3 +139,109 @@ def contact_equations(
     Ja = (J * (on[..., None] * mask)[..., None]).reshape(B, -1, 6 + n)
     P = torch.eye(6 + n, dtype=Y.dtype, device=Y.device) - torch.linalg.pinv(Ja) @ Ja
     return P @ Y, (P @ y[..., None])[..., 0]
+
+
+class _Padded:
+    """A floating-base model seen by the fixed-base tools (`project`, `check`,
+    `prior_options`): the base body as one more body with joint terms that no data touch, so
+    that every body has the same block of ``10 + n_terms`` parameters."""
+
+    def __init__(self, model: FloatingBaseModel):
+        self.model = model
+        joints = model.joints.layout
+        self.layout = ParameterLayout(
+            (model.base_name, *joints.joint_names),
+            joints.friction,
+            (model.base_name, *joints.term_owners),
+        )
+        self.n_terms = joints.n_friction
+        self.parameter_names = self.layout.parameter_names
+        self.n_params = self.layout.n_params
+        self.nominal_theta = self.pad(model.nominal_theta)
+
+    def pad(self, theta: torch.Tensor) -> torch.Tensor:
+        return torch.cat([theta[:10], theta.new_zeros(self.n_terms), theta[10:]])
+
+    def unpad(self, theta: torch.Tensor) -> torch.Tensor:
+        return torch.cat([theta[:10], theta[10 + self.n_terms :]])
+
+    def pad_moments(self, m: Moments) -> Moments:
+        k = self.n_terms
+        index = torch.cat([torch.arange(10), torch.arange(10 + k, self.n_params)])
+        xtx = m.xtx.new_zeros(self.n_params, self.n_params)
+        xtx[index[:, None], index[None, :]] = m.xtx
+        sum_x, xty = (x.new_zeros(self.n_params).index_copy(0, index, x) for x in (m.sum_x, m.xty))
+        return Moments(m.n, sum_x, m.sum_y, xtx, xty, m.yty, m.n_rows)
+
+
+def contact_moments(
+    model: FloatingBaseModel,
+    log,
+    *,
+    rows: str = "auto",
+    flat: Collection[str] = (),
+    chunk_size: int = 2048,
+) -> Moments:
+    """The `Moments` of a legged log's regression rows (`contact_equations`), streamed
+    ``chunk_size`` samples at a time, for any estimator's ``fit_moments``.
+
+    Args:
+        model: the robot.
+        log: a `torchjfa.data.LeggedLog` with ``v`` and ``a`` (`torchjfa.data.prepare_legged`).
+        rows, flat: as `contact_equations`; the log's ``contact`` flags and ``wrench`` are
+            passed (flags for ``"projected"``, wrenches otherwise).
+        chunk_size: samples per chunk.
+
+    Raises:
+        ValueError: on a log without velocities or accelerations, or as `contact_equations`.
+    """
+    if log.v is None or log.a is None:
+        raise ValueError("the log has no velocities or accelerations: prepare it first")
+    moments = Moments.zeros(model.n_params)
+    T = len(log.t)
+    for s in range(0, T, chunk_size):
+        part = slice(s, min(T, s + chunk_size))
+        wrenches = {k: w[part] for k, w in log.wrench.items()} or None
+        contacts = {k: c[part] for k, c in log.contact.items()} or None
+        Y, y = contact_equations(
+            model, log.q[part], log.v[part], log.a[part],
+            None if log.tau is None else log.tau[part],
+            contacts=contacts, wrenches=wrenches, flat=flat, rows=rows,
+        )  # fmt: skip
+        moments.update(Y.reshape(-1, model.n_params), y.reshape(-1))
+    return moments
+
+
+def consistent_floating(
+    model: FloatingBaseModel,
+    moments: Moments,
+    theta_hat: torch.Tensor,
+    *,
+    prior_weight: float | None = 1.0,
+    parametrization: str = DEFAULT_PARAMETRIZATION,
+):
+    """Physically consistent parameters of a floating-base robot closest to an unconstrained
+    estimate in the data's metric (`torchjfa.physical.project` over every body, the base's
+    included), pulled towards the description with ``prior_weight`` (in the units of
+    `torchjfa.identification.Options.description_prior`; None: no prior).
+
+    Returns:
+        ``(theta, projection, report)``: ``(n_params,)`` float64 in the model's layout; the
+        `torchjfa.physical.ProjectionResult` (in a layout that gives the base joint terms,
+        unused and 0); and theta's `torchjfa.physical.ConsistencyReport`, one body per entry,
+        the base first.
+    """
+    from ..physical import check, project
+    from ._prior import prior_options
+
+    padded = _Padded(model)
+    m = padded.pad_moments(moments)
+    hat = padded.pad(torch.as_tensor(theta_hat, dtype=torch.float64))
+    extra = {}
+    if prior_weight is not None:
+        extra = prior_options(padded, m, hat, float(prior_weight))
+        if float(prior_weight) > 0:
+            extra["ridge"] = 0.0
+    result = project(hat, layout=padded.layout, moments=m, parametrization=parametrization, **extra)
+    theta = result.theta.detach().to(torch.float64)
+    return padded.unpad(theta), result, check(theta, padded.layout)
