@@ -188,8 +188,9 @@ def contact_moments(
     Args:
         model: the robot.
         log: a `torchjfa.data.LeggedLog` with ``v`` and ``a`` (`torchjfa.data.prepare_legged`).
-        rows, flat: as `contact_equations`; the log's ``contact`` flags and ``wrench`` are
-            passed (flags for ``"projected"``, wrenches otherwise).
+        rows: as `contact_equations`; the log's ``contact`` flags and ``wrench`` are passed
+            (flags for ``"projected"``, wrenches otherwise).
+        flat: as `contact_equations`.
         chunk_size: samples per chunk.
 
     Raises:
@@ -224,6 +225,13 @@ def consistent_floating(
     estimate in the data's metric (`torchjfa.physical.project` over every body, the base's
     included), pulled towards the description with ``prior_weight`` (in the units of
     `torchjfa.identification.Options.description_prior`; None: no prior).
+
+    Args:
+        model: the robot.
+        moments: the rows' `Moments` (`contact_moments`).
+        theta_hat: ``(n_params,)`` the unconstrained estimate.
+        prior_weight: the description prior's weight, or None.
+        parametrization: as `torchjfa.physical.project`.
 
     Returns:
         ``(theta, projection, report)``: ``(n_params,)`` float64 in the model's layout; the
