@@ -16,6 +16,12 @@ TWO_LINK = """<?xml version="1.0"?>
 """
 
 
+# example-robot-data's Go2: its feet and a standing pose (thighs 0.8 rad, calves -1.5 rad)
+GO2_FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+GO2_STANCE = {f"{leg}_{j}_joint": v for leg in ("FL", "FR", "RL", "RR") for j, v in
+              (("thigh", 0.8), ("calf", -1.5))}  # fmt: skip
+
+
 def erd_path(relative: str) -> str:
     """A robot file of the installed example-robot-data; the test is skipped without it."""
     import importlib.metadata

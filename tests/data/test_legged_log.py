@@ -8,16 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _robots import erd_path
+from _robots import GO2_FEET, GO2_STANCE, erd_path
 
 from torchjfa.data import LogError, differentiate, prepare_legged, read_legged_log
 from torchjfa.dynamics import FloatingBaseModel
 from torchjfa.identification import contact_equations
 from torchjfa.sim import simulate_legged
 
-FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
-STANCE = {f"{leg}_{j}_joint": v for leg in ("FL", "FR", "RL", "RR") for j, v in
-          (("thigh", 0.8), ("calf", -1.5))}  # fmt: skip
+FEET = GO2_FEET
+STANCE = GO2_STANCE
 
 
 @pytest.fixture(scope="module")

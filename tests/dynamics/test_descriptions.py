@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from _robots import erd_path
 from dyn_robots import SMALL_URDF, random_state
 
 import torchjfa.robots
@@ -277,14 +278,7 @@ def test_tags_pytorch_kinematics_would_refuse_are_not_needed():
 
 # ----------------------------------------------------------------------------- example-robot-data
 def _erd(relative: str) -> str:
-    try:
-        importlib.metadata.distribution("example-robot-data")
-    except importlib.metadata.PackageNotFoundError:
-        pytest.skip("example-robot-data is not installed")
-    try:
-        return torchjfa.robots.example_robot_data_path(relative)
-    except FileNotFoundError:
-        pytest.skip(f"this example-robot-data has no {relative}")
+    return erd_path(relative)
 
 
 # (file, fixed_joints, n_dof, starts with an encoding declaration)

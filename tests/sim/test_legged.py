@@ -13,16 +13,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from _robots import erd_path
+from _robots import GO2_FEET, GO2_STANCE, erd_path
 
 from torchjfa.dynamics import FloatingBaseModel
 from torchjfa.identification import consistent_floating, contact_equations, contact_moments
 from torchjfa.sim import simulate_legged
 from torchjfa.stats import Moments
 
-FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
-STANCE = {f"{leg}_{j}_joint": v for leg in ("FL", "FR", "RL", "RR") for j, v in
-          (("thigh", 0.8), ("calf", -1.5))}  # fmt: skip
+FEET = GO2_FEET
+STANCE = GO2_STANCE
 
 
 @pytest.fixture(scope="module")
