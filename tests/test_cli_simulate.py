@@ -194,7 +194,7 @@ def _bad_cases(tmp_path):
     return [
         (["simulate", tmp_path / "nowhere.urdf", *out], "no robot file"),
         (["simulate", broken, *out], "MuJoCo cannot read"),
-        (["simulate", floating, *out], "hinge and slide joints only"),
+        (["simulate", floating, *out], "floating and planar joints are not supported"),
         ([*sim, "--trajectory", head_traj], "are not the simulated panda_arm's"),
         (
             [*sim, "--trajectory", wide_traj],

@@ -129,6 +129,11 @@ def test_partial_velocity_columns_and_text_columns_are_errors(tmp_path):
     )
     with pytest.raises(LogError, match=r"qd columns for some joints but not for \['qd_b'\]"):
         read_log(path)
+    # the joints were found in the columns: the message says they may be a stranger's
+    with pytest.raises(LogError, match=r"if \['b'\] are not joints of the robot, remove"):
+        read_log(path)
+    with pytest.raises(LogError, match=r"none$"):  # joints given: no such guess
+        read_log(path, joints=["a", "b"])
     _write_csv(path, ["t", "q_a", "tau_a"], [["0", "x", "0"], ["1", "y", "0"]])
     with pytest.raises(LogError, match="column 'q_a' is not numeric"):
         read_log(path)

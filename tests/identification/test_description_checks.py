@@ -117,3 +117,25 @@ def test_an_inconsistent_description_is_no_prior_unless_a_weight_is_given(broken
     assert ident.result.prior_weight == 10.0
     (line,) = [w for w in ident.warnings if "not physically consistent" in w]
     assert "with the weight 10.0 given" in line
+
+
+def test_a_logged_joint_the_robot_lacks_is_named_before_its_missing_columns(tmp_path):
+    """A joint the description does not have, logged without velocities beside joints with
+    them: the stranger is named, not its missing velocity column alone."""
+    import numpy as np
+
+    import torchjfa.robots
+    from torchjfa.data import LogError
+    from torchjfa.identification import read
+
+    model = RigidBodyModel.from_urdf(torchjfa.robots.path("panda_arm"))
+    t = np.arange(0.0, 2.0, 0.01)
+    cols = {"t": t}
+    for k, j in enumerate(model.joint_names):
+        cols[f"q_{j}"], cols[f"qd_{j}"], cols[f"tau_{j}"] = np.sin(t * k), t, t
+    cols["q_gripper"] = cols["tau_gripper"] = t
+    path = tmp_path / "log.csv"
+    np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",",
+               header=",".join(cols), comments="")  # fmt: skip
+    with pytest.raises(LogError, match=r"joint\(s\) \['gripper'\] are in the log but the robot"):
+        read(path, model)

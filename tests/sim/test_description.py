@@ -122,7 +122,8 @@ def _urdf(tmp_path, *, kind="revolute", extra="", links=("a", "b", "c")):
     [
         ("missing", "no robot file"),
         ("malformed", "not well-formed XML"),
-        ("floating", "hinge and slide joints only"),
+        ("floating", "floating and planar joints are not supported"),
+        ("repeated", "joint 'j2' is defined twice"),
         ("mimic", "equality constraints"),
         ("massless", "mass and inertia of moving bodies"),
         ("not-mjcf", "MuJoCo cannot read"),
@@ -138,6 +139,9 @@ def test_what_cannot_be_simulated_raises_a_clear_error(case, match, tmp_path):
         robot = _urdf(tmp_path, kind="floating")
     elif case == "mimic":
         robot = _urdf(tmp_path, extra='<mimic joint="j1"/>')
+    elif case == "repeated":  # MuJoCo's importer would drop the second name
+        robot = _urdf(tmp_path)
+        robot.write_text(robot.read_text().replace('joint name="j1"', 'joint name="j2"'))
     elif case == "massless":
         robot = _urdf(tmp_path)
         robot.write_text(robot.read_text().replace(_LINK.format("c"), '<link name="c"/>'))

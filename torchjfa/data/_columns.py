@@ -209,7 +209,8 @@ def gather(
     mapping, problems = map_columns(columns, raw, where)
     renamed_from = {theirs: ours for ours, theirs in mapping.items()}
     names = [renamed_from.get(n, n) for n in raw]
-    if joints is None:
+    inferred = joints is None
+    if inferred:
         joints = joints_from_columns(names)
         if not joints:
             problems.append(
@@ -239,9 +240,16 @@ def gather(
         present = [j for j in joints if has(f"{source}_{j}")]
         if kind in ("qd", "qdd") and present and len(present) != len(joints):
             absent = [f"{kind}_{j}" for j in joints if j not in present]
+            others = [j for j in joints if j not in present]
+            maybe = (
+                f" (if {others} are not joints of the robot, remove their columns or read the "
+                "robot's joints only with joints=)"
+                if inferred
+                else ""
+            )
             raise LogError(
                 f"{where}: {kind} columns for some joints but not for {absent}; give every "
-                "joint's or none"
+                f"joint's or none{maybe}"
             )
         if kind in ("q", "tau") or present:
             sources[kind] = [f"{source}_{j}" for j in joints]

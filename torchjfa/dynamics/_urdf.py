@@ -136,6 +136,12 @@ def check_urdf(root: ET.Element, where: str) -> tuple[dict[str, ET.Element], dic
     return links, joints
 
 
+def check_urdf_elements(root: ET.Element, where: str) -> None:
+    """The first part of `check_urdf`: every link and joint named once, joint types supported,
+    every joint's links defined (ValueError otherwise, naming them)."""
+    _joints(root, _links(root, where), where)
+
+
 def _links(root: ET.Element, where: str) -> dict[str, ET.Element]:
     """The named ``<link>`` elements, in file order; each name once."""
     links: dict[str, ET.Element] = {}
@@ -162,8 +168,9 @@ def _joints(root: ET.Element, links: dict[str, ET.Element], where: str) -> dict[
             )
         if jtype in ("floating", "planar"):
             raise ValueError(
-                f"{where}: joint {name!r} is {jtype!r}: floating and planar bases are not "
-                "supported; use a fixed-base description (the root link is then fixed to the world)"
+                f"{where}: joint {name!r} is {jtype!r}: floating and planar joints are not "
+                "supported; a fixed base is the root link fixed to the world, and a free-flying "
+                "base is the root link itself (FloatingBaseModel.from_urdf)"
             )
         if jtype not in (*MOVING, "fixed"):
             raise ValueError(

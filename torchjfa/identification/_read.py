@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -124,7 +125,18 @@ def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLo
     if isinstance(source, JointLog):
         log = source
     else:
-        log = read_log(source, **_reading(options, model))
+        kw = _reading(options, model)
+        try:
+            log = read_log(source, **kw)
+        except LogError as exc:
+            foreign = [] if kw["columns"] else _foreign_joints(source, model)
+            if not foreign:
+                raise
+            raise LogError(
+                f"{source}: joint(s) {foreign} are in the log but the robot has no joint of that "
+                f"name; remove their columns or rename them to the robot's {list(model.joint_names)}"
+                f" (reading the log also found: {str(exc).removeprefix(f'{source}: ')})"
+            ) from None
     if model.transmission is not None:
         try:
             log = model.transmission.joint_side(log)
@@ -141,6 +153,20 @@ def read(source, model: RigidBodyModel, options: Options | None = None) -> RawLo
         log = log.select(slice(0, min(keep, log.n_samples)))
     notes = [f"{log.source}: {n}" for n in log.info.get("read_notes", [])]
     return RawLog(log, notes + [p.message for p in problems])
+
+
+def _foreign_joints(source, model: RigidBodyModel) -> list[str]:
+    """The joints a log file's column names name that the model lacks ([] where the file's
+    columns cannot be listed)."""
+    from ..data._log import _format, _read_columns
+    from ..data._schema import joints_from_columns
+
+    try:
+        path = Path(source)
+        raw, _ = _read_columns(path, _format(path, None))
+    except Exception:  # the original error says what is wrong with the file
+        return []
+    return [j for j in joints_from_columns(raw) if j not in model.joint_names]
 
 
 def _reading(options: Options, model: RigidBodyModel) -> dict:

@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import robots
 from ..dynamics._mjcf import strip_urdf_for_mujoco
+from ..dynamics._urdf import check_urdf_elements
 from ._robots import EFFECTS, _fields, check_hinge_robot, joint_names, set_effects
 
 __all__ = ["Description", "DescriptionError", "load_description", "description_path"]
@@ -134,6 +135,10 @@ def _urdf_spec(path: str) -> tuple[mujoco.MjSpec, dict[str, float]]:
         raise DescriptionError(f"{path!r} is not well-formed XML: {exc}") from None
     if root.tag != "robot":
         raise DescriptionError(f"{path!r} is not a URDF (its root element is <{root.tag}>)")
+    try:  # names and links first: MuJoCo's importer drops a repeated joint's name
+        check_urdf_elements(root, f"{path!r}")
+    except ValueError as exc:
+        raise DescriptionError(str(exc)) from None
     strip_urdf_for_mujoco(root, fusestatic="true")
     velocity = {}
     for joint in root.findall("joint"):
