@@ -414,9 +414,20 @@ def test_a_cut_last_line_is_named_by_its_number(tmp_path):
         tmp_path / "log.csv", _columns(n=80)
     )  # past the lines the delimiter is found from
     path.write_text(path.read_text() + "0.81,0.5")  # the writer was stopped mid-line
-    with pytest.raises(LogError, match=r"line 82 has 2 fields where the header has 7") as err:
+    with pytest.raises(
+        LogError, match=r"line 82 \(the last\) has 2 fields where the header has 7"
+    ) as err:
         read_log(path)
-    assert "delete that line" in str(err.value) and "\n" not in str(err.value)
+    assert "--drop-cut-line" in str(err.value) and "\n" not in str(err.value)
+    log = read_log(path, drop_cut_line=True)
+    whole = read_log(_write(tmp_path / "whole.csv", _columns(n=80)))
+    assert log.n_samples == whole.n_samples == 80  # the cut line is gone, nothing else
+    torch.testing.assert_close(log.q, whole.q, rtol=0, atol=0)
+    assert any("dropped its last line 82" in n for n in log.info["read_notes"])
+    # a ragged line with lines after it is no cut write: refused, even with the flag
+    path.write_text(path.read_text() + "\n0.82,1,2,3,4,5,6\n")
+    with pytest.raises(LogError, match=r"line 82 has 2 fields.*only a last line may be dropped"):
+        read_log(path, drop_cut_line=True)
 
 
 def test_a_column_named_twice_is_refused_by_name(tmp_path):

@@ -256,11 +256,16 @@ def _npz_columns(path: Path) -> dict[str, np.ndarray | None]:
 
 
 def _read_columns(
-    path: Path, fmt: str, *, topic: str | None = None, effort: str = "torque"
+    path: Path,
+    fmt: str,
+    *,
+    topic: str | None = None,
+    effort: str = "torque",
+    drop_cut_line: bool = False,
 ) -> tuple[dict[str, np.ndarray | None], dict]:
     """The file's columns by its own names (None for text columns), and ``info`` entries
-    (``format``; ``delimiter`` for text)."""
-    info: dict = {"format": fmt}
+    (``format``; ``delimiter`` for text; ``read_notes``)."""
+    info: dict = {"format": fmt, "read_notes": []}
     if fmt == "ros":
         from ._ros import ros_columns
 
@@ -270,7 +275,7 @@ def _read_columns(
     if fmt == "csv":
         from ._text import read_table
 
-        table, delimiter = read_table(path)
+        table, delimiter = read_table(path, drop_cut_line=drop_cut_line, notes=info["read_notes"])
         info["delimiter"] = delimiter
         return table_columns(table, decimal_comma=delimiter != ","), info
     import pyarrow as pa
@@ -306,6 +311,7 @@ def read_log(
     time_scale: float | None = None,
     drop_nan: bool = False,
     drop_outliers: bool = False,
+    drop_cut_line: bool = False,
     format: str | None = None,
     drive_gains: Mapping[str, float] | None = None,
     topic: str | None = None,
@@ -329,6 +335,9 @@ def read_log(
         drop_outliers: drop rows where a signal holds an isolated spike (`spike_rows`: a
             sample far from both its neighbours and the signal's range); they are reported,
             and `LogError` is raised, when False.
+        drop_cut_line: leave out a text log's last line when its number of fields differs
+            from the header's (a log cut while it was written; noted in ``info["read_notes"]``);
+            a `LogError` names that line otherwise.
         format: ``"csv"``, ``"npz"``, ``"parquet"`` or ``"ros"`` (default from the suffix).
         drive_gains: N m/A per joint name, for a log with motor currents ``i_<joint>`` (A)
             and no torques: ``tau = gain * i``. Every joint read needs one.
@@ -358,7 +367,7 @@ def read_log(
         raise FileNotFoundError(f"no log file {str(path)!r}")
     fmt = _format(path, format)
     _options(path, fmt, topic, effort)
-    raw, info = _read_columns(path, fmt, topic=topic, effort=effort)
+    raw, info = _read_columns(path, fmt, topic=topic, effort=effort, drop_cut_line=drop_cut_line)
     t, joints, signals, found = gather(raw, columns, joints, drive_gains, path)
     bad = ~np.isfinite(t)
     for v in signals.values():
@@ -394,7 +403,7 @@ def read_log(
     if t.size < 2:
         raise LogError(f"{path}: the log has {t.size} usable samples; at least 2 are needed")
     t, timing = seconds(t, time_scale, path)
-    notes = found["read_notes"] + timing["read_notes"]
+    notes = info.pop("read_notes") + found["read_notes"] + timing["read_notes"]
     info.update(found)
     info.update(timing, read_notes=notes)
     dt = np.diff(t)

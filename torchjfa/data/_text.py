@@ -70,41 +70,55 @@ def sniff_delimiter(path: Path) -> str:
     )
 
 
-def read_table(path: Path):
+def read_table(path: Path, *, drop_cut_line: bool = False, notes: list | None = None):
     """The text log at ``path`` as a pyarrow table, and its delimiter (a key of
     `DELIMITER_NAMES`). Column names are stripped of surrounding blanks; empty fields are null.
 
+    With ``drop_cut_line``, a last line with fewer or more fields than the header (a log cut
+    while it was written) is left out, and a line saying so is appended to ``notes``.
+
     Raises:
         LogError: when the delimiter cannot be told, or the file does not parse with it (the
-            message names the delimiter tried).
+            message names the delimiter tried, or the line whose fields do not match the
+            header's).
     """
     import pyarrow as pa
     from pyarrow import csv as pa_csv
 
     delimiter = sniff_delimiter(path)
     convert = pa_csv.ConvertOptions(strings_can_be_null=True)
+    cut = None
     try:
-        if delimiter == SPACES:  # runs of blanks: one tab between fields, then read as TSV
-            with open(path, encoding="utf-8", errors="replace") as fh:
-                text = "\n".join("\t".join(line.split()) for line in fh if line.strip())
-            source = io.BytesIO(text.lstrip("\ufeff").encode())
-            parse = pa_csv.ParseOptions(delimiter="\t")
+        if drop_cut_line:
+            cut = _ragged_line(path, delimiter)
+            if cut is not None and not cut[3]:
+                cut = None  # a ragged line before the last: not a cut write; refused below
+        if delimiter == SPACES or cut is not None:
+            source, parse = _text_source(path, delimiter, None if cut is None else cut[0])
         else:
             source, parse = path, pa_csv.ParseOptions(delimiter=delimiter)
         table = pa_csv.read_csv(source, parse_options=parse, convert_options=convert)
     except (pa.ArrowInvalid, OSError, UnicodeError) as exc:
         ragged = _ragged_line(path, delimiter)
         if ragged is not None:
-            line, got, want = ragged
+            line, got, want, last = ragged
+            fix = (
+                "drop it with drop_cut_line=True (--drop-cut-line), or fix it"
+                if last
+                else "only a last line may be dropped; fix that line"
+            )
             raise LogError(
-                f"{path}: line {line} has {got} fields where the header has {want} with the "
-                f"delimiter {DELIMITER_NAMES[delimiter]} (a log cut while it was written ends "
-                "so): delete that line, or fix it"
+                f"{path}: line {line}{' (the last)' if last else ''} has {got} fields where the "
+                f"header has {want} with the delimiter {DELIMITER_NAMES[delimiter]} (a log cut "
+                f"while it was written ends so): {fix}"
             ) from None
         raise LogError(
             f"{path}: cannot read it as delimited text with the delimiter "
             f"{DELIMITER_NAMES[delimiter]} (found from its first lines): {exc}"
         ) from None
+    if cut is not None and notes is not None:
+        notes.append(f"dropped its last line {cut[0]}, cut while it was written ({cut[1]} of "
+                     f"{cut[2]} fields)")  # fmt: skip
     names = [str(n).strip() for n in table.column_names]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -115,22 +129,38 @@ def read_table(path: Path):
     return table.rename_columns(names), delimiter
 
 
-def _ragged_line(path: Path, delimiter: str) -> tuple[int, int, int] | None:
-    """The first line (1-based) whose number of fields differs from the header's, with both
-    numbers; None when every line has the header's (the parse failed for another reason).
-    Fields are counted by splitting at the delimiter (quoted delimiters are not expected in
-    numeric logs)."""
+def _ragged_line(path: Path, delimiter: str) -> tuple[int, int, int, bool] | None:
+    """The first line (1-based) whose number of fields differs from the header's, both
+    numbers, and whether it is the file's last non-blank line; None when every line has the
+    header's (the parse failed for another reason). Fields are counted by splitting at the
+    delimiter (quoted delimiters are not expected in numeric logs)."""
 
     def fields(line: str) -> int:
         return len(line.split()) if delimiter == SPACES else line.count(delimiter) + 1
 
-    want = None
+    want, found = None, None
     with open(path, encoding="utf-8", errors="replace") as fh:
         for k, line in enumerate(fh, start=1):
             if not line.strip():
                 continue
+            if found is not None:
+                return (*found, False)  # another line follows the ragged one
             if want is None:
                 want = fields(line)
             elif fields(line) != want:
-                return k, fields(line), want
-    return None
+                found = (k, fields(line), want)
+    return None if found is None else (*found, True)
+
+
+def _text_source(path: Path, delimiter: str, skip: int | None):
+    """The file as bytes for pyarrow, blank lines left out, without line ``skip`` (1-based);
+    runs of blanks become one tab (read as TSV) for `SPACES`."""
+    from pyarrow import csv as pa_csv
+
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        lines = [ln for k, ln in enumerate(fh, start=1) if ln.strip() and k != skip]
+    if delimiter == SPACES:
+        text, parse = "\n".join("\t".join(ln.split()) for ln in lines), "\t"
+    else:
+        text, parse = "".join(ln if ln.endswith("\n") else ln + "\n" for ln in lines), delimiter
+    return io.BytesIO(text.lstrip("\ufeff").encode()), pa_csv.ParseOptions(delimiter=parse)

@@ -170,6 +170,8 @@ class Options:
         drop_nan: drop rows holding NaN instead of stopping.
         drop_outliers: drop rows holding an isolated spike instead of stopping
             (`torchjfa.data.spike_rows`).
+        drop_cut_line: leave out a text log's last line cut while it was written instead of
+            stopping.
         max_seconds: use only the first this many seconds of each log (a quick check), or None.
         drive_gains: N m/A per joint, to turn motor-current columns ``i_<joint>`` (A) into
             joint torques: a sequence in the robot's joint order or ``{joint: gain}``; None for
@@ -271,6 +273,12 @@ class Options:
         group="reading",
         help="drop rows holding an isolated spike (one sample far from its neighbours and the "
         "signal's range; default: report them and stop)",
+    )
+    drop_cut_line: bool = option(
+        False,
+        group="reading",
+        help="leave out a CSV log's last line when it has fewer or more fields than the header "
+        "(a log cut while it was written; default: name that line and stop)",
     )
     max_seconds: float | None = option(
         None,

@@ -175,6 +175,7 @@ def _reading(options: Options, model: RigidBodyModel) -> dict:
         "columns": None if options.columns is None else dict(options.columns),
         "drop_nan": options.drop_nan,
         "drop_outliers": options.drop_outliers,
+        "drop_cut_line": options.drop_cut_line,
     }
     if options.time_scale is not None:
         kw["time_scale"] = options.time_scale
