@@ -127,3 +127,28 @@ def test_the_public_write_functions_take_keywords(tmp_path):
     assert mujoco.MjModel.from_xml_path(str(tmp_path / "a.xml")).njnt == model.n_dof
     with pytest.raises(ValueError, match="theta must have shape"):
         write_urdf(model=model, theta=model.nominal_theta[:3], path=tmp_path / "b.urdf")
+
+
+def test_an_exported_mjcf_keeps_every_digit_of_the_bodies_placements(tmp_path):
+    """The xArm7's joint frames turn by angles whose quaternions have no short decimals: the
+    MJCF written from its URDF must place the bodies to float64 precision for MuJoCo's
+    inverse dynamics to give the model's torques to 1e-9 (six digits give about 1e-6)."""
+    from _robots import erd_path
+
+    path = erd_path("xarm_description/urdf/xarm7.urdf")
+    model = RigidBodyModel.from_urdf(path, friction=())
+    model.write_mjcf(model.nominal_theta, tmp_path / "xarm7.xml")
+    mj = mujoco.MjModel.from_xml_path(str(tmp_path / "xarm7.xml"))
+    mj.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    mj.dof_damping[:] = 0.0  # the description's own damping (10 N m s/rad) stays in the file
+    data = mujoco.MjData(mj)
+    order = [mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
+    dofs = [int(mj.jnt_dofadr[j]) for j in order]
+    g = torch.Generator().manual_seed(1)
+    for _ in range(5):
+        q, qd, qdd = (torch.randn(model.n_dof, generator=g, dtype=torch.float64) for _ in range(3))
+        data.qpos[dofs], data.qvel[dofs], data.qacc[dofs] = q.numpy(), qd.numpy(), qdd.numpy()
+        mujoco.mj_inverse(mj, data)
+        expected = model.inverse_dynamics(q, qd, qdd, model.nominal_theta)
+        got = torch.as_tensor(data.qfrc_inverse[dofs])
+        assert torch.allclose(got, expected, rtol=0, atol=1e-9 * float(expected.abs().max()))

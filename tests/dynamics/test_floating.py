@@ -253,7 +253,7 @@ def test_frame_jacobians_equal_pinocchio(name, frames):
 def _go2_mjcf(mujoco, path: str, scenery: bool) -> str:
     """Go2's MJCF (MuJoCo's URDF importer) with a free joint on its base, placed and turned
     away from the origin; with ``scenery``, a heavy table beside it."""
-    from torchjfa.dynamics._mjcf import mjcf_from_urdf
+    from torchjfa.dynamics._mjcf import _full_precision, mjcf_from_urdf
 
     spec = mujoco.MjSpec.from_string(mjcf_from_urdf(Path(path).read_text()))
     base = spec.worldbody.first_body()
@@ -263,7 +263,8 @@ def _go2_mjcf(mujoco, path: str, scenery: bool) -> str:
     if scenery:
         table = spec.worldbody.add_body(name="table", pos=[2.0, 0.0, 0.5])
         table.add_geom(size=[0.5, 0.5, 0.05], type=mujoco.mjtGeom.mjGEOM_BOX, mass=30.0)
-    return spec.to_xml()
+    spec.compile()
+    return _full_precision(spec.to_xml(), spec)  # to_xml alone writes 6 digits
 
 
 def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matrix():
@@ -273,11 +274,10 @@ def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matr
     model = FloatingBaseModel.from_mjcf(text)
     urdf = FloatingBaseModel.from_urdf(path)
     assert model.base_name == "base" and model.joint_names == urdf.joint_names
-    # MuJoCo writes the MJCF's numbers to 6 significant digits (principal inertias and
-    # their quaternions): the MJCF's inertials agree with the URDF's to about 1e-6 of each body's
-    # largest value; the exact check is the mass matrix of the same MJCF below
+    # the MJCF keeps every digit of the URDF's numbers; MuJoCo's compile turns each inertia
+    # into principal axes and back (an eigen-decomposition: round-off of 1e-15 of it)
     scale = float(urdf.nominal_theta.abs().max())
-    torch.testing.assert_close(model.nominal_theta, urdf.nominal_theta, rtol=0, atol=1e-6 * scale)
+    torch.testing.assert_close(model.nominal_theta, urdf.nominal_theta, rtol=0, atol=1e-12 * scale)
     q, v, a = _state(model.n_dof, 3, seed=8)
     Y_urdf = urdf.regressor(q, v, a)
     torch.testing.assert_close(model.regressor(q, v, a), Y_urdf, rtol=1e-12, atol=1e-12)

@@ -272,9 +272,48 @@ def mjcf_from_urdf(text: str) -> str:
     try:
         spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
         spec.compile()
-        return spec.to_xml()
+        return _full_precision(spec.to_xml(), spec)
     except Exception as exc:  # MuJoCo raises ValueError, and others for some specs
         raise ValueError(f"MuJoCo cannot compile this URDF: {exc}") from None
+
+
+def _full_precision(xml: str, spec) -> str:
+    """``xml`` (MuJoCo's ``to_xml`` of ``spec``, which writes 6 significant digits) with every
+    body's placement, every joint's position and axis and every inertial written with all the
+    digits of float64, from ``spec``."""
+    import xml.etree.ElementTree as ET
+
+    def numbers(values) -> str:
+        return " ".join(repr(float(v)) for v in values)
+
+    root = ET.fromstring(xml)
+    bodies = {b.name: b for b in spec.bodies if b.name}
+    joints = {j.name: j for j in spec.joints if j.name}
+    for el in root.iter("body"):
+        body = bodies.get(el.get("name", ""))
+        if body is None:
+            continue
+        for key, value in (("pos", body.pos), ("quat", body.quat)):
+            if key in el.attrib:
+                el.set(key, numbers(value))
+        inertial = el.find("inertial")
+        if inertial is not None and body.explicitinertial:
+            inertial.set("pos", numbers(body.ipos))
+            if np.all(np.isfinite(body.fullinertia)):  # the URDF's six entries, as given
+                for key in ("quat", "diaginertia"):
+                    inertial.attrib.pop(key, None)
+                inertial.set("fullinertia", numbers(body.fullinertia))
+            else:
+                inertial.set("quat", numbers(body.iquat))
+                inertial.set("diaginertia", numbers(body.inertia))
+    for el in root.iter("joint"):
+        joint = joints.get(el.get("name", ""))
+        if joint is None:
+            continue
+        for key, value in (("pos", joint.pos), ("axis", joint.axis)):
+            if key in el.attrib:
+                el.set(key, numbers(value))
+    return ET.tostring(root, encoding="unicode")
 
 
 def fixed_base_mjcf(text: str, path: str | None) -> tuple[str, str]:
@@ -311,6 +350,6 @@ def fixed_base_mjcf(text: str, path: str | None) -> tuple[str, str]:
         spec.texturedir = os.path.join(folder, spec.texturedir or "")
     try:
         spec.compile()
-        return spec.to_xml(), base.name or "base"
+        return _full_precision(spec.to_xml(), spec), base.name or "base"
     except Exception as exc:
         raise ValueError(f"MuJoCo cannot compile this MJCF: {' '.join(str(exc).split())}") from None
