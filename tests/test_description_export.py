@@ -4,6 +4,7 @@ URDF gets each joint's ``<dynamics damping friction>``."""
 
 import warnings
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import mujoco
 import pytest
@@ -152,3 +153,39 @@ def test_an_exported_mjcf_keeps_every_digit_of_the_bodies_placements(tmp_path):
         expected = model.inverse_dynamics(q, qd, qdd, model.nominal_theta)
         got = torch.as_tensor(data.qfrc_inverse[dofs])
         assert torch.allclose(got, expected, rtol=0, atol=1e-9 * float(expected.abs().max()))
+
+
+def test_an_exported_urdf_finds_its_meshes_outside_ros(tmp_path, monkeypatch):
+    """example-robot-data's xArm7 names its meshes package://example-robot-data/...: the
+    written URDF names the files themselves, and MuJoCo loads it, meshes and all, from
+    another folder."""
+    from _robots import erd_path
+
+    path = erd_path("xarm_description/urdf/xarm7.urdf")
+    model = RigidBodyModel.from_urdf(path, friction=())
+    out = tmp_path / "elsewhere" / "xarm7.urdf"
+    out.parent.mkdir()
+    model.write_urdf(model.nominal_theta, out)
+    names = [m.get("filename") for m in ET.parse(out).getroot().iter("mesh")]
+    assert names and all(Path(n).is_absolute() and Path(n).is_file() for n in names)
+    monkeypatch.chdir(tmp_path)
+    mj = mujoco.MjModel.from_xml_path(str(out))
+    assert mj.nmesh > 0 and mj.njnt == model.n_dof
+
+
+def test_mesh_names_resolve_by_package_path_and_folder(tmp_path, monkeypatch):
+    from torchjfa.dynamics._writeback import resolve_mesh
+
+    (tmp_path / "ws" / "my_robot" / "meshes").mkdir(parents=True)
+    mesh = tmp_path / "ws" / "my_robot" / "meshes" / "a.stl"
+    mesh.write_text("solid a\nendsolid a\n")
+    urdf = tmp_path / "ws" / "my_robot" / "urdf" / "r.urdf"
+    urdf.parent.mkdir()
+    # the package found among the description's own ancestors, and a name relative to it
+    assert resolve_mesh("package://my_robot/meshes/a.stl", str(urdf)) == str(mesh.resolve())
+    assert resolve_mesh("../meshes/a.stl", str(urdf)) == str(urdf.parent / "../meshes/a.stl")
+    # elsewhere, through ROS_PACKAGE_PATH only
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "ws"))
+    assert resolve_mesh("package://my_robot/meshes/a.stl", None) == str(mesh.resolve())
+    assert resolve_mesh("package://other/meshes/a.stl", str(urdf)) is None
+    assert resolve_mesh("file://" + str(mesh), None) == str(mesh)

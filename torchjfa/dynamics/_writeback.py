@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -46,8 +47,51 @@ def _values(model, theta: torch.Tensor):
     return inertials
 
 
+def resolve_mesh(filename: str, source_path: str | None) -> str | None:
+    """The absolute path of a URDF mesh file name, or None where it cannot be found.
+
+    ``package://PKG/REST`` is looked up, without ROS, in the folders of ``$ROS_PACKAGE_PATH``
+    (``PKG/REST`` in each) and in the description's own folders: the first ancestor named
+    ``PKG`` (``ANCESTOR/REST``), or with a subfolder ``PKG``. A relative name is taken from
+    the description's folder; ``file://`` is stripped.
+    """
+    if filename.startswith("file://"):
+        filename = filename[len("file://") :]
+    here = Path(source_path).resolve().parent if source_path else None
+    if not filename.startswith("package://"):
+        found = Path(filename) if os.path.isabs(filename) or here is None else here / filename
+        return str(found) if found.is_file() else None
+    package, _, rest = filename[len("package://") :].partition("/")
+    roots = [
+        Path(p) / package for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p
+    ]
+    if here is not None:
+        for folder in (here, *here.parents):
+            if folder.name == package:
+                roots.append(folder)
+            roots.append(folder / package)
+    for root in roots:
+        if (root / rest).is_file():
+            return str((root / rest).resolve())
+    return None
+
+
+def _resolve_meshes(root: ET.Element, source_path: str | None) -> None:
+    """Every ``<mesh filename>`` that can be found made absolute (`resolve_mesh`), so that the
+    written URDF loads from any folder without ROS; the others are left as they are."""
+    for mesh in root.iter("mesh"):
+        name = mesh.get("filename")
+        found = resolve_mesh(name, source_path) if name else None
+        if found is not None:
+            mesh.set("filename", found)
+
+
 def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     """Write ``model``'s URDF with theta's inertials and joint friction to ``path``.
+
+    Mesh file names that can be found (``package://`` resolved without ROS, relative names
+    from the description's folder, `resolve_mesh`) are written as absolute paths, so that the
+    file loads in MuJoCo or Pinocchio from any folder.
 
     Args:
         model: a `RigidBodyModel` read from URDF.
@@ -89,6 +133,7 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
             for old in links[name].findall("inertial"):
                 links[name].remove(old)
     _write_urdf_dynamics(model, theta, root)
+    _resolve_meshes(root, model.source_path)
     ET.indent(root, space="  ")
     with open(path, "w", encoding="utf-8") as fh:
         fh.write('<?xml version="1.0"?>\n')
