@@ -29,7 +29,7 @@ from ._kinematics import body_poses
 from ._mjcf import fixed_base_mjcf
 from ._model import RigidBodyModel
 from ._parameters import INERTIAL_NAMES
-from ._rnea import floating_regressor_into
+from ._rnea import floating_regressor_into, skew
 from ._tree import read_description
 
 __all__ = ["FloatingBaseModel", "quaternion_matrix"]
@@ -290,7 +290,7 @@ class FloatingBaseModel:
             j = tree.frame_owner[f]
             pos = torch.as_tensor(tree.frame_pos[f], **kw)
             p = pos.expand(*batch, 3) if j < 0 else poss[j] + rots[j] @ pos
-            lin = [torch.eye(3, **kw).expand(*batch, 3, 3), -_skew(p)]
+            lin = [torch.eye(3, **kw).expand(*batch, 3, 3), -skew(p)]
             ang = [torch.zeros(*batch, 3, 3, **kw), torch.eye(3, **kw).expand(*batch, 3, 3)]
             chain = set(c.ancestors[j]) if j >= 0 else set()
             for k in range(n):
@@ -310,10 +310,3 @@ class FloatingBaseModel:
             J = torch.cat([torch.cat(lin, -1), torch.cat(ang, -1)], -2)  # base axes
             out.append(torch.cat([R_wb @ J[..., :3, :], R_wb @ J[..., 3:, :]], -2))
         return out[0] if single else torch.stack(out, -3)
-
-
-def _skew(p: torch.Tensor) -> torch.Tensor:
-    """``[p]x``, ``(..., 3, 3)``, of ``p (..., 3)``."""
-    x, y, z = p.unbind(-1)
-    o = torch.zeros_like(x)
-    return torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(*p.shape[:-1], 3, 3)

@@ -33,7 +33,7 @@ import torch
 
 from ._tree import KinematicTree
 
-__all__ = ["TreeConstants", "regressor_into", "floating_regressor_into"]
+__all__ = ["TreeConstants", "regressor_into", "floating_regressor_into", "skew"]
 
 
 @dataclass
@@ -76,10 +76,7 @@ class TreeConstants:
     ) -> TreeConstants:
         """The constants of ``tree`` (float64 numpy) as tensors of ``dtype`` on ``device``."""
         kw = {"dtype": dtype, "device": device}
-        ax64 = torch.as_tensor(tree.axis, dtype=torch.float64)
-        x, y, z = ax64.unbind(-1)
-        o = torch.zeros_like(x)
-        K = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(-1, 3, 3)
+        K = skew(torch.as_tensor(tree.axis, dtype=torch.float64))
         ancestors = tree.ancestors()
         pos_point = tree.pos_fixed + np.einsum("nij,nj->ni", tree.rot_fixed, tree.axis_point)
         return cls(
@@ -100,6 +97,13 @@ class TreeConstants:
                 torch.tensor([i for i, a in enumerate(ancestors) for _ in a], device=device),
             ),
         )
+
+
+def skew(p: torch.Tensor) -> torch.Tensor:
+    """``[p]x``, ``(..., 3, 3)``, of ``p (..., 3)``: ``[p]x v = p x v``."""
+    x, y, z = p.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(*p.shape[:-1], 3, 3)
 
 
 def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
