@@ -30,6 +30,7 @@ import numpy as np
 from .._util import atomic_file
 from ._columns import seconds
 from ._differentiate import DEFAULT_CUTOFF_HZ, differentiate
+from ._log import _format, _read_columns
 from ._schema import TIME_COLUMN, LogError
 
 __all__ = ["LeggedLog", "read_legged_log", "prepare_legged", "BASE_POSE", "BASE_TWIST"]
@@ -162,8 +163,6 @@ def read_legged_log(
             time not strictly increasing, a base quaternion that is not unit, or contact
             flags other than 0 and 1.
     """
-    from ._log import _format, _read_columns
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no log file {str(path)!r}")

@@ -22,8 +22,9 @@ import torch
 
 from .._validation import as_tensor, check_finite
 from ..dynamics import FloatingBaseModel, ParameterLayout
-from ..physical import DEFAULT_PARAMETRIZATION
+from ..physical import DEFAULT_PARAMETRIZATION, check, project
 from ..stats import Moments
+from ._prior import prior_options
 
 __all__ = ["contact_equations", "contact_moments", "consistent_floating", "ROWS"]
 
@@ -239,9 +240,6 @@ def consistent_floating(
         unused and 0); and theta's `torchjfa.physical.ConsistencyReport`, one body per entry,
         the base first.
     """
-    from ..physical import check, project
-    from ._prior import prior_options
-
     padded = _Padded(model)
     m = padded.pad_moments(moments)
     hat = padded.pad(torch.as_tensor(theta_hat, dtype=torch.float64))
