@@ -1,5 +1,7 @@
 """Small robot descriptions shared by tests in several folders."""
 
+import numpy as np
+
 # a planar 2R arm in the vertical x-z plane (axes along y, gravity along -z), l1 = 0.4 m
 TWO_LINK = """<?xml version="1.0"?>
 <robot name="two_link">
@@ -38,3 +40,56 @@ def erd_path(relative: str) -> str:
         return torchjfa.robots.example_robot_data_path(relative)
     except FileNotFoundError:
         pytest.skip(f"this example-robot-data has no {relative}")
+
+
+class PinocchioFreeFlyer:
+    """Pinocchio's free-flyer model of a URDF, with our joint order mapped onto its own."""
+
+    def __init__(self, pin, path: str, model):
+        self.pin = pin
+        self.pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
+        self.pd = self.pm.createData()
+        assert sorted(list(self.pm.names)[2:]) == sorted(model.joint_names)
+        self.ids = [self.pm.getJointId(n) for n in model.joint_names]
+        joints = [self.pm.joints[j] for j in self.ids]
+        assert all(j.nq == 1 and j.nv == 1 for j in joints)
+        self.iq = np.array([*range(7), *(j.idx_q for j in joints)])
+        self.iv = np.array([*range(6), *(j.idx_v for j in joints)])
+        # theta columns: the free flyer's body (joint 1), then each joint's body in our order
+        self.cols = np.array(
+            [*range(10), *(c for j in self.ids for c in range(10 * (j - 1), 10 * j))]
+        )
+
+    def state(self, q, v, a):
+        qp, vp, ap = np.zeros(self.pm.nq), np.zeros(self.pm.nv), np.zeros(self.pm.nv)
+        qp[self.iq], vp[self.iv], ap[self.iv] = q, v, a
+        return qp, vp, ap
+
+    def regressor(self, q, v, a) -> np.ndarray:
+        Y = self.pin.computeJointTorqueRegressor(self.pm, self.pd, *self.state(q, v, a))
+        return Y[np.ix_(self.iv, self.cols)]
+
+    def rnea(self, q, v, a) -> np.ndarray:
+        return self.pin.rnea(self.pm, self.pd, *self.state(q, v, a))[self.iv]
+
+    def crba(self, q) -> np.ndarray:
+        M = self.pin.crba(self.pm, self.pd, self.state(q, 0 * q[:-1], 0 * q[:-1])[0])
+        M = np.triu(M) + np.triu(M, 1).T
+        return M[np.ix_(self.iv, self.iv)]
+
+    def theta(self) -> np.ndarray:
+        inertias = self.pm.inertias
+        return np.concatenate(
+            [inertias[j].toDynamicParameters() for j in range(1, self.pm.njoints)]
+        )
+
+    def frame_jacobians(self, q, frames) -> list[np.ndarray]:
+        """Each frame's ``LOCAL_WORLD_ALIGNED`` Jacobian, ``(6, 6 + n)`` in our order, at q."""
+        pin, pm, pd = self.pin, self.pm, self.pd
+        qp = self.state(q, np.zeros(len(q) - 1), np.zeros(len(q) - 1))[0]
+        pin.computeJointJacobians(pm, pd, qp)
+        pin.updateFramePlacements(pm, pd)
+        return [
+            pin.getFrameJacobian(pm, pd, pm.getFrameId(f), pin.LOCAL_WORLD_ALIGNED)[:, self.iv]
+            for f in frames
+        ]

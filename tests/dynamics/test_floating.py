@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from _robots import erd_path
+from _robots import PinocchioFreeFlyer, erd_path
 
 from torchjfa.dynamics import FloatingBaseModel, RigidBodyModel
 from torchjfa.dynamics._floating import quaternion_matrix
@@ -36,54 +36,12 @@ def _state(n: int, batch: int, seed: int):
     return q, rng.normal(size=(batch, 6 + n)), rng.normal(size=(batch, 6 + n))
 
 
-class _Pinocchio:
-    """Pinocchio's free-flyer model of a URDF, with our joint order mapped onto its own."""
-
-    def __init__(self, pin, path: str, model: FloatingBaseModel):
-        self.pin = pin
-        self.pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
-        self.pd = self.pm.createData()
-        assert sorted(list(self.pm.names)[2:]) == sorted(model.joint_names)
-        self.ids = [self.pm.getJointId(n) for n in model.joint_names]
-        joints = [self.pm.joints[j] for j in self.ids]
-        assert all(j.nq == 1 and j.nv == 1 for j in joints)
-        self.iq = np.array([*range(7), *(j.idx_q for j in joints)])
-        self.iv = np.array([*range(6), *(j.idx_v for j in joints)])
-        # theta columns: the free flyer's body (joint 1), then each joint's body in our order
-        self.cols = np.array(
-            [*range(10), *(c for j in self.ids for c in range(10 * (j - 1), 10 * j))]
-        )
-
-    def state(self, q, v, a):
-        qp, vp, ap = np.zeros(self.pm.nq), np.zeros(self.pm.nv), np.zeros(self.pm.nv)
-        qp[self.iq], vp[self.iv], ap[self.iv] = q, v, a
-        return qp, vp, ap
-
-    def regressor(self, q, v, a) -> np.ndarray:
-        Y = self.pin.computeJointTorqueRegressor(self.pm, self.pd, *self.state(q, v, a))
-        return Y[np.ix_(self.iv, self.cols)]
-
-    def rnea(self, q, v, a) -> np.ndarray:
-        return self.pin.rnea(self.pm, self.pd, *self.state(q, v, a))[self.iv]
-
-    def crba(self, q) -> np.ndarray:
-        M = self.pin.crba(self.pm, self.pd, self.state(q, 0 * q[:-1], 0 * q[:-1])[0])
-        M = np.triu(M) + np.triu(M, 1).T
-        return M[np.ix_(self.iv, self.iv)]
-
-    def theta(self) -> np.ndarray:
-        inertias = self.pm.inertias
-        return np.concatenate(
-            [inertias[j].toDynamicParameters() for j in range(1, self.pm.njoints)]
-        )
-
-
 @pytest.mark.parametrize("name", list(LEGGED))
 def test_free_flyer_regressor_equals_pinocchio(name):
     pin = pytest.importorskip("pinocchio")
     path = erd_path(LEGGED[name])
     model = FloatingBaseModel.from_urdf(path, friction=())
-    ref = _Pinocchio(pin, path, model)
+    ref = PinocchioFreeFlyer(pin, path, model)
     np.testing.assert_allclose(
         model.nominal_theta.numpy(), ref.theta()[ref.cols], rtol=0, atol=1e-12
     )
@@ -234,20 +192,15 @@ def test_frame_jacobians_equal_pinocchio(name, frames):
     pin = pytest.importorskip("pinocchio")
     path = erd_path(LEGGED[name])
     model = FloatingBaseModel.from_urdf(path)
-    ref = _Pinocchio(pin, path, model)
+    ref = PinocchioFreeFlyer(pin, path, model)
     q, _, _ = _state(model.n_dof, 3, seed=7)
     J = model.frame_jacobian(q, frames).numpy()
     assert J.shape == (3, len(frames), 6, 6 + model.n_dof)
     torch.testing.assert_close(model.frame_jacobian(q, frames[0]), torch.as_tensor(J[:, 0]))
     for b in range(q.shape[0]):
-        qp = ref.state(q[b], 0 * q[b, :-1], 0 * q[b, :-1])[0]
-        pin.computeJointJacobians(ref.pm, ref.pd, qp)
-        pin.updateFramePlacements(ref.pm, ref.pd)
-        for k, frame in enumerate(frames):
-            fid = ref.pm.getFrameId(frame)
-            expected = pin.getFrameJacobian(ref.pm, ref.pd, fid, pin.LOCAL_WORLD_ALIGNED)
+        for k, expected in enumerate(ref.frame_jacobians(q[b], frames)):
             # products of a few rotations of unit size: round-off of order 1e-15
-            np.testing.assert_allclose(J[b, k], expected[:, ref.iv], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(J[b, k], expected, rtol=0, atol=1e-12)
 
 
 def _go2_mjcf(mujoco, path: str, scenery: bool) -> str:

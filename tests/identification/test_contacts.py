@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from _robots import erd_path
+from _robots import GO2_FEET, PinocchioFreeFlyer, erd_path
 
 from torchjfa.dynamics import FloatingBaseModel
 from torchjfa.identification import contact_equations
 
-FEET = ("FL_foot", "FR_foot", "RL_foot", "RR_foot")
+FEET = GO2_FEET
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +25,8 @@ def go2():
     pin = pytest.importorskip("pinocchio")
     path = erd_path("go2_description/urdf/go2.urdf")
     model = FloatingBaseModel.from_urdf(path, friction=())
-    pm = pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer())
+    ref = PinocchioFreeFlyer(pin, path, model)
+    pm = ref.pm
     rng = np.random.default_rng(11)
     for j in range(1, pm.njoints):  # the hidden truth: every body perturbed, still physical
         old = pm.inertias[j]
@@ -34,12 +35,8 @@ def go2():
             old.lever + rng.normal(scale=0.01, size=3),
             old.inertia * rng.uniform(0.7, 1.3),
         )
-    pd = pm.createData()
-    ids = [pm.getJointId(n) for n in model.joint_names]
-    iq = np.array([*range(7), *(pm.joints[j].idx_q for j in ids)])
-    iv = np.array([*range(6), *(pm.joints[j].idx_v for j in ids)])
-    cols = np.array([*range(10), *(c for j in ids for c in range(10 * (j - 1), 10 * j))])
-    truth = np.concatenate([pm.inertias[j].toDynamicParameters() for j in range(1, pm.njoints)])
+    ref.pd = pm.createData()
+    truth = ref.theta()[ref.cols]
 
     def samples(count: int, seed: int):
         rng = np.random.default_rng(seed)
@@ -54,19 +51,10 @@ def go2():
         tau = np.zeros((count, model.n_dof))
         forces = np.zeros((count, 4, 3))
         for b in range(count):
-            qp, vp, ap = np.zeros(pm.nq), np.zeros(pm.nv), np.zeros(pm.nv)
-            qp[iq], vp[iv], ap[iv] = q[b], v[b], a[b]
-            gen = pin.rnea(pm, pd, qp, vp, ap)[iv]
-            pin.computeJointJacobians(pm, pd, qp)
-            pin.updateFramePlacements(pm, pd)
+            gen = ref.rnea(q[b], v[b], a[b])
             down = [k for k in range(4) if on[b, k]]
             J = np.concatenate(
-                [
-                    pin.getFrameJacobian(pm, pd, pm.getFrameId(FEET[k]), pin.LOCAL_WORLD_ALIGNED)[
-                        :3, iv
-                    ]
-                    for k in down
-                ]
+                [Jk[:3] for Jk in ref.frame_jacobians(q[b], [FEET[k] for k in down])]
             )
             f = np.linalg.lstsq(J[:, :6].T, gen[:6], rcond=None)[0]
             assert np.allclose(J[:, :6].T @ f, gen[:6], atol=1e-9 * np.abs(gen).max())
@@ -76,7 +64,7 @@ def go2():
         wrenches = {name: forces[:, k] for k, name in enumerate(FEET)}
         return q, v, a, tau, flags, wrenches
 
-    return model, truth[cols], samples
+    return model, truth, samples
 
 
 def _fit(Y: torch.Tensor, y: torch.Tensor) -> np.ndarray:
