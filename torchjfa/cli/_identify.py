@@ -50,7 +50,7 @@ def identify_options(args) -> Options:
 def cmd_identify(args) -> int:
     import warnings
 
-    from ..identification import IdentificationWarning, identify
+    from ..identification import IdentificationWarning, LeggedIdentification, identify
 
     command = command_line(args)
     options = identify_options(args)
@@ -65,6 +65,8 @@ def cmd_identify(args) -> int:
             validation_log=args.validation_log,
             settings={"command": command},
         )
+    if isinstance(ident, LeggedIdentification):
+        return _legged_done(ident, args)
     paths = ident.write(
         args.out,
         plots=not args.no_plots,
@@ -89,6 +91,23 @@ def cmd_identify(args) -> int:
     return 0
 
 
+def _legged_done(ident, args) -> int:
+    """Write a floating-base identification's report and print its headline."""
+    if args.appendix:
+        raise UsageError("--appendix applies to fixed-base robots; report.json holds every number")
+    paths = ident.write(
+        args.out,
+        plots=not args.no_plots,
+        **written_as(args, args.robot, *args.log, *(args.validation_log or ())),
+    )
+    for line in ident.headline():
+        print(line)
+    print(f"report: {paths['markdown']}")
+    for w in ident.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
 def add_identify(sub) -> argparse.ArgumentParser:
     """Add the ``identify`` sub-command to ``sub`` (the ``add_subparsers`` of the ``torchjfa``
     parser); returns its parser, which runs `cmd_identify`."""
@@ -99,7 +118,9 @@ def add_identify(sub) -> argparse.ArgumentParser:
         "their ends, filter and differentiate each, identify the rigid-body and friction "
         "parameters from all of them, project them onto physically consistent ones, and write "
         "the model, tables, figures and a Markdown report. Every option is a field of "
-        "torchjfa.Options (the same defaults from Python).",
+        "torchjfa.Options (the same defaults from Python). A floating-base robot (a legged "
+        "robot, a humanoid; logs with its base pose and contacts) is identified from its "
+        "contact equations: see the floating-base options.",
     )
     p.add_argument(
         "robot",
@@ -110,7 +131,8 @@ def add_identify(sub) -> argparse.ArgumentParser:
         nargs="+",
         help="the logs (one identification from all): .csv, .npz or .parquet with columns t, "
         "q_<joint>, [qd_<joint>], tau_<joint> (or motor currents i_<joint> with "
-        "--drive-gains), or ROS bags (.bag, .mcap, .db3, a bag folder)",
+        "--drive-gains), or ROS bags (.bag, .mcap, .db3, a bag folder); for a floating-base "
+        "robot also base_x..base_qw, contact_<frame> and f_<frame>_x/_y/_z",
     )
     add_output(p, default="result", what="the report, the model, its description and figures")
     p.add_argument(

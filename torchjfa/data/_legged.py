@@ -90,6 +90,19 @@ class LeggedLog:
                     out[f"m_{frame}_{axis}"] = w[:, 3 + i]
         return out
 
+    def select(self, keep: np.ndarray) -> LeggedLog:
+        """The samples where the ``(T,)`` boolean ``keep`` holds (or at the indices it
+        gives), every signal alike."""
+
+        def take(x):
+            return None if x is None else x[keep]
+
+        return replace(
+            self, t=self.t[keep], q=self.q[keep], v=take(self.v), a=take(self.a),
+            tau=take(self.tau), contact={k: c[keep] for k, c in self.contact.items()},
+            wrench={k: w[keep] for k, w in self.wrench.items()},
+        )  # fmt: skip
+
     def save(self, path: str | os.PathLike) -> None:
         """Write the columns as ``.csv`` (a header line, then one line per sample, every digit
         of float64) or ``.npz`` (one array per column), whole or not at all."""

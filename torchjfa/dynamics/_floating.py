@@ -31,6 +31,7 @@ from ._model import RigidBodyModel
 from ._parameters import INERTIAL_NAMES
 from ._rnea import floating_regressor_into, skew
 from ._tree import read_description
+from ._writeback import write_floating_urdf
 
 __all__ = ["FloatingBaseModel", "quaternion_matrix"]
 
@@ -253,6 +254,17 @@ class FloatingBaseModel:
         tau = self._regressor(q3, torch.zeros_like(acc3), acc3, gravity=False) @ theta
         M = (tau[:, :-1] - tau[:, -1:]).transpose(1, 2)  # column j: tau(e_j) - tau(0)
         return M.reshape(*batch, 6 + n, 6 + n)
+
+    def write_urdf(self, theta, path: str | os.PathLike) -> None:
+        """Write the URDF this model was read from with theta's inertials (the base's on the
+        root link, whose fixed children keep none) and joint friction; as
+        `torchjfa.dynamics.write_urdf`.
+
+        Raises:
+            ValueError: for a model read from MJCF, a theta of the wrong shape, a body that
+                is not physically consistent.
+        """
+        write_floating_urdf(self, theta, path)
 
     # ------------------------------------------------------------------ contacts
     def frame_jacobian(self, q, frames: str | Sequence[str]) -> torch.Tensor:

@@ -94,7 +94,8 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     file loads in MuJoCo or Pinocchio from any folder.
 
     Args:
-        model: a `RigidBodyModel` read from URDF.
+        model: a `RigidBodyModel` read from URDF (`FloatingBaseModel.write_urdf` writes a
+            floating-base one).
         theta: ``(n_params,)`` physically consistent parameters (`torchjfa.physical.project`).
         path: the file to write.
 
@@ -112,28 +113,56 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     root = ET.fromstring(model.source_xml, parser=parser)
     links = {link.get("name"): link for link in root.findall("link")}
     for b in inertials:
-        link = links[b.body]
-        for old in link.findall("inertial"):
-            link.remove(old)
-        el = ET.SubElement(link, "inertial")
-        ET.SubElement(el, "origin", xyz=" ".join(_fmt(v) for v in b.com.tolist()), rpy="0 0 0")
-        ET.SubElement(el, "mass", value=_fmt(b.mass))
-        inertia = b.inertia.numpy()
-        ET.SubElement(
-            el,
-            "inertia",
-            ixx=_fmt(inertia[0, 0]),
-            ixy=_fmt(inertia[0, 1]),
-            ixz=_fmt(inertia[0, 2]),
-            iyy=_fmt(inertia[1, 1]),
-            iyz=_fmt(inertia[1, 2]),
-            izz=_fmt(inertia[2, 2]),
-        )
+        _inertial_element(links[b.body], b.com.tolist(), b.mass, b.inertia.numpy())
         for name in model.lumped_bodies[b.joint]:
             for old in links[name].findall("inertial"):
                 links[name].remove(old)
     _write_urdf_dynamics(model, theta, root)
     _resolve_meshes(root, model.source_path)
+    ET.indent(root, space="  ")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write('<?xml version="1.0"?>\n')
+        fh.write(ET.tostring(root, encoding="unicode"))
+        fh.write("\n")
+
+
+def _inertial_element(link: ET.Element, com, mass, inertia) -> None:
+    """``link``'s ``<inertial>`` replaced by one of ``mass`` (kg) at ``com`` (m, link axes)
+    with ``inertia`` ``(3, 3)`` about it (kg m^2)."""
+    for old in link.findall("inertial"):
+        link.remove(old)
+    el = ET.SubElement(link, "inertial")
+    ET.SubElement(el, "origin", xyz=" ".join(_fmt(v) for v in com), rpy="0 0 0")
+    ET.SubElement(el, "mass", value=_fmt(mass))
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    values = {k: _fmt(inertia[i, j]) for k, (i, j) in zip(keys, pairs, strict=True)}
+    ET.SubElement(el, "inertia", **values)
+
+
+def write_floating_urdf(model, theta: torch.Tensor, path) -> None:
+    """`write_urdf` of a `FloatingBaseModel`: the joints' bodies as for a fixed base, then the
+    base's inertial on the root link (the links fixed to it lumped into it)."""
+    from ._parameters import inertial_from_vector
+
+    theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
+    mass, com, inertia = inertial_from_vector(theta[:10])
+    eig = np.linalg.eigvalsh(inertia.numpy())
+    if not float(mass) > 0 or eig.min() < -1e-12 * max(1.0, abs(eig).max()):
+        raise ValueError(
+            f"the base {model.base_name!r} has mass {float(mass)} and principal inertias "
+            f"{eig.tolist()}; project theta onto physically consistent parameters first"
+        )
+    write_urdf(model.joints, theta[10:], path)
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    root = ET.parse(path, parser=parser).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    tree = model.joints._tree
+    for name, owner in zip(tree.frame_names, tree.frame_owner, strict=True):
+        if owner < 0 and name in links:
+            for old in links[name].findall("inertial"):
+                links[name].remove(old)
+    _inertial_element(links[model.base_name], com.tolist(), float(mass), inertia.numpy())
     ET.indent(root, space="  ")
     with open(path, "w", encoding="utf-8") as fh:
         fh.write('<?xml version="1.0"?>\n')

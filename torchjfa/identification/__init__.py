@@ -33,9 +33,11 @@ from ._bias import correct_bias as correct_bias
 from ._bias import signal_bootstrap as signal_bootstrap
 from ._bias import simex_bias as simex_bias
 from ._consistent import make_consistent as make_consistent
+from ._contacts import RowMoments as RowMoments
 from ._contacts import consistent_floating as consistent_floating
 from ._contacts import contact_equations as contact_equations
 from ._contacts import contact_moments as contact_moments
+from ._contacts import row_moments as row_moments
 from ._evaluate import Evaluation as Evaluation
 from ._evaluate import evaluate as evaluate
 from ._fit import fit as fit
@@ -44,6 +46,8 @@ from ._gains import DriveGains as DriveGains
 from ._gains import identify_drive_gains as identify_drive_gains
 from ._identify import Identification as Identification
 from ._identify import identify as identify
+from ._legged import LeggedIdentification as LeggedIdentification
+from ._legged import identify_legged as identify_legged
 from ._noise import NoiseChoice as NoiseChoice
 from ._noise import cap_period_noise as cap_period_noise
 from ._noise import choose_noise as choose_noise

@@ -16,7 +16,7 @@ its own rows, chosen by `contact_equations`'s ``rows``):
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 
 import torch
 
@@ -26,7 +26,14 @@ from ..physical import DEFAULT_PARAMETRIZATION, check, project
 from ..stats import Moments
 from ._prior import prior_options
 
-__all__ = ["contact_equations", "contact_moments", "consistent_floating", "ROWS"]
+__all__ = [
+    "ROWS",
+    "RowMoments",
+    "consistent_floating",
+    "contact_equations",
+    "contact_moments",
+    "row_moments",
+]
 
 ROWS = ("auto", "all", "base", "projected")
 
@@ -175,16 +182,69 @@ class _Padded:
         return Moments(m.n, sum_x, m.sum_y, xtx, xty, m.yty, m.n_rows)
 
 
-def contact_moments(
+class RowMoments:
+    """The `Moments` of each row of a floating-base robot's equations (the base's six, then
+    one per joint; after `contact_equations`), kept apart so that each row can be weighted
+    and judged on its own.
+
+    Attributes:
+        rows: one `Moments` per row.
+    """
+
+    def __init__(self, rows: Sequence[Moments]) -> None:
+        self.rows = list(rows)
+
+    @classmethod
+    def zeros(cls, n_rows: int, n_params: int) -> RowMoments:
+        """Empty statistics of ``n_rows`` rows of ``n_params`` parameters."""
+        return cls([Moments.zeros(n_params) for _ in range(n_rows)])
+
+    def update(self, Y: torch.Tensor, y: torch.Tensor) -> RowMoments:
+        """Add ``(B, r, n_params)`` rows and their ``(B, r)`` right-hand sides in place."""
+        for r, m in enumerate(self.rows):
+            m.update(Y[:, r], y[:, r])
+        return self
+
+    def __add__(self, other: RowMoments) -> RowMoments:
+        return RowMoments([a + b for a, b in zip(self.rows, other.rows, strict=True)])
+
+    @property
+    def n_samples(self) -> int:
+        """Samples seen."""
+        return self.rows[0].n_rows
+
+    def combined(self, weights: Sequence[float] | torch.Tensor | None = None) -> Moments:
+        """All rows in one `Moments`, row ``r`` weighted by ``weights[r]`` (default 1)."""
+        w = torch.ones(len(self.rows), dtype=torch.float64) if weights is None else weights
+        w = torch.as_tensor(w, dtype=torch.float64)
+        parts = [
+            torch.stack([getattr(m, key) * float(wr) for m, wr in zip(self.rows, w, strict=True)])
+            for key in ("n", "sum_x", "sum_y", "xtx", "xty", "yty")
+        ]
+        n_rows = sum(m.n_rows for m in self.rows)
+        return Moments(*(p.sum(0) for p in parts), n_rows=n_rows)
+
+    def rms(self, theta) -> torch.Tensor:
+        """``(r,)`` each row's RMS residual ``y - Y theta`` (its unit: N, N m)."""
+        theta = torch.as_tensor(theta, dtype=torch.float64)
+        out = [m.rss(theta) / max(m.n_rows, 1) for m in self.rows]
+        return torch.stack(out).clamp_min(0.0).sqrt()
+
+    def target_rms(self) -> torch.Tensor:
+        """``(r,)`` each row's RMS right-hand side (the residual of theta = 0)."""
+        return torch.stack([(m.yty / max(m.n_rows, 1)).clamp_min(0.0).sqrt() for m in self.rows])
+
+
+def row_moments(
     model: FloatingBaseModel,
     log,
     *,
     rows: str = "auto",
     flat: Collection[str] = (),
     chunk_size: int = 2048,
-) -> Moments:
-    """The `Moments` of a legged log's regression rows (`contact_equations`), streamed
-    ``chunk_size`` samples at a time, for any estimator's ``fit_moments``.
+) -> RowMoments:
+    """The `RowMoments` of a legged log's regression rows (`contact_equations`), streamed
+    ``chunk_size`` samples at a time.
 
     Args:
         model: the robot.
@@ -199,7 +259,7 @@ def contact_moments(
     """
     if log.v is None or log.a is None:
         raise ValueError("the log has no velocities or accelerations: prepare it first")
-    moments = Moments.zeros(model.n_params)
+    out = None
     T = len(log.t)
     for s in range(0, T, chunk_size):
         part = slice(s, min(T, s + chunk_size))
@@ -210,8 +270,37 @@ def contact_moments(
             None if log.tau is None else log.tau[part],
             contacts=contacts, wrenches=wrenches, flat=flat, rows=rows,
         )  # fmt: skip
-        moments.update(Y.reshape(-1, model.n_params), y.reshape(-1))
-    return moments
+        out = out or RowMoments.zeros(Y.shape[1], model.n_params)
+        out.update(Y, y)
+    if out is None:
+        raise ValueError("the log has no samples")
+    return out
+
+
+def contact_moments(
+    model: FloatingBaseModel,
+    log,
+    *,
+    rows: str = "auto",
+    flat: Collection[str] = (),
+    chunk_size: int = 2048,
+) -> Moments:
+    """The `Moments` of a legged log's regression rows (`contact_equations`), streamed
+    ``chunk_size`` samples at a time, for any estimator's ``fit_moments``: `row_moments`
+    with every row weighted 1.
+
+    Args:
+        model: the robot.
+        log: a `torchjfa.data.LeggedLog` with ``v`` and ``a`` (`torchjfa.data.prepare_legged`).
+        rows: as `contact_equations`; the log's ``contact`` flags and ``wrench`` are passed
+            (flags for ``"projected"``, wrenches otherwise).
+        flat: as `contact_equations`.
+        chunk_size: samples per chunk.
+
+    Raises:
+        ValueError: on a log without velocities or accelerations, or as `contact_equations`.
+    """
+    return row_moments(model, log, rows=rows, flat=flat, chunk_size=chunk_size).combined()
 
 
 def consistent_floating(

@@ -19,6 +19,7 @@ from ..report._result import IdentificationResult
 from ._bias import correct_bias
 from ._consistent import make_consistent
 from ._fit import fit
+from ._legged import LeggedIdentification, identify_legged, is_legged_log
 from ._noise import NoiseChoice, choose_noise
 from ._options import IdentificationWarning, Options
 from ._prepare import PreparedData, prepare_data, several
@@ -134,7 +135,7 @@ def identify(
     *,
     validation_log=None,
     settings: Mapping[str, object] | None = None,
-) -> Identification:
+) -> Identification | LeggedIdentification:
     """Identify a robot from its raw log, with the whole real-log flow.
 
     `load_model` -> `read` (check the log) -> `prepare_data` (cut-off, filter, derivatives,
@@ -157,7 +158,9 @@ def identify(
         settings: more entries for the report's record (e.g. the command line).
 
     Returns:
-        An `Identification`; ``.write(folder)`` writes the report. Each of its
+        An `Identification`; ``.write(folder)`` writes the report. For a floating-base robot
+        (``options.floating_base``, by default where the first log has base-pose columns) a
+        `torchjfa.identification.LeggedIdentification` (`identify_legged`). Each of its
         ``warnings`` is also issued as an `IdentificationWarning`, and one more when the
         held-out fit is worse than the torques' mean (`Identification.problem`).
 
@@ -167,6 +170,9 @@ def identify(
     """
     options = Options() if options is None else options
     logs = several(logs)
+    if options.floating_base or (options.floating_base is None and is_legged_log(logs[0])):
+        return identify_legged(robot, logs, options, validation_log=validation_log,
+                               settings=settings)  # fmt: skip
     held_logs = [] if validation_log is None else several(validation_log)
     with progress_bar(total=len(STAGES), desc="identify", enabled=options.compute.progress,
                       unit="stage") as bar:  # fmt: skip

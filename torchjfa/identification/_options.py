@@ -9,7 +9,7 @@ dataclasses and cannot drift from them.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import MISSING, Field, dataclass, field, fields, replace
+from dataclasses import MISSING, Field, dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 import torch
@@ -21,6 +21,7 @@ from ..stats import CHUNK_SIZE
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
 from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
+from ._option_field import GROUPS, option
 
 if TYPE_CHECKING:
     from ..estimators import LinearEstimator
@@ -44,51 +45,6 @@ JOINT_TERMS = FRICTION_KINDS
 DEFAULT_JOINT_TERMS = ("viscous", "coulomb", "offset")
 #: the bias correction's refits with ``bias_correction="auto"`` for least squares
 AUTO_BIAS_REFITS = 20
-#: the groups of options, in the order the command's help lists them: name -> title
-GROUPS = {
-    "reading": "reading the log",
-    "preparation": "filtering, differentiating and splitting",
-    "model": "the model's joint terms",
-    "estimator": "estimation",
-    "projection": "physical consistency",
-    "compute": "computation",
-}
-
-
-def option(
-    default=MISSING,
-    *,
-    group: str,
-    help: str,
-    parse: Callable[[str], object] | None = None,
-    choices: Sequence[str] | Callable[[], Sequence[str]] | None = None,
-    flag: str | None = None,
-    metavar: str | None = None,
-    cli: bool = True,
-    action: str | None = None,
-    default_factory=MISSING,
-) -> Field:
-    """A dataclass field of `Options` or `Compute` with its command-line metadata.
-
-    Args:
-        default, default_factory: as for `dataclasses.field`.
-        group: a key of `GROUPS`.
-        help: the flag's help text (the default is appended by the command).
-        parse: turns the flag's text into the field's value (raises
-            ``argparse.ArgumentTypeError`` with what was expected); default: the default's type.
-        choices: the values allowed on the command line (or a function giving them).
-        flag: the flag (default ``--`` + the name with dashes; a bool that defaults to True
-            gets ``--no-<name>``).
-        metavar: the value's name in the help.
-        cli: False for a field the command does not set (a Python object, say).
-        action: ``"switch"`` for a ``bool | None`` field: ``--name`` / ``--no-name``, neither
-            given the default.
-    """
-    if group not in GROUPS:
-        raise ValueError(f"unknown option group {group!r}; choose from {tuple(GROUPS)}")
-    meta = {"group": group, "help": help, "parse": parse, "choices": choices, "flag": flag,
-            "metavar": metavar, "cli": cli, "action": action}  # fmt: skip
-    return field(default=default, default_factory=default_factory, metadata=meta)
 
 
 # ------------------------------------------------------------------------------ parsers
@@ -245,6 +201,18 @@ class Options:
             there is no projection and ``"auto"`` does nothing. In simulation, where the
             description is the truth, turn it off: it would lend the fit the answer.
         projection_options: more keywords of `torchjfa.physical.project`.
+
+    Floating-base robots (`torchjfa.identification.identify_legged`):
+        floating_base: the robot's root link is a free-flying base (a legged robot, a
+            humanoid) and the logs are `torchjfa.data.read_legged_log` logs; None: so where
+            the first log has base-pose columns (``base_x``, ...).
+        base_rows_only: regress the six base equations alone (the measured contact wrenches
+            against the bodies' motion: no joint torques and no joint terms), which determine
+            the total mass and the first moments; needs force sensors.
+        total_mass: the robot's known total mass, kg, held by a constraint row; None: none.
+        flat_contacts: contact frames that pass a moment too (flat feet, a hand gripping):
+            without force sensors six directions are projected out for each of them, three
+            (a force) for the others, point feet.
 
     compute: `Compute` (chunking, device, processes, progress, the regressor's path).
     """
@@ -459,6 +427,39 @@ class Options:
     projection_options: Mapping[str, object] = option(
         group="projection", default_factory=dict, cli=False, help=""
     )
+    # floating-base robots
+    floating_base: bool | None = option(
+        None,
+        group="floating",
+        action="switch",
+        help="the robot's root link is a free-flying base (a legged robot, a humanoid) and the "
+        "logs hold its pose (base_x, ..., base_qw), contacts (contact_<frame>) and, where "
+        "measured, contact forces (f_<frame>_x, ...); by default where the first log has "
+        "base-pose columns",
+    )
+    base_rows_only: bool = option(
+        False,
+        group="floating",
+        help="regress the six base equations alone: the measured contact wrenches against the "
+        "bodies' motion, without joint torques or joint terms (needs force sensors); they "
+        "determine the total mass and the centre of mass",
+    )
+    total_mass: float | None = option(
+        None,
+        group="floating",
+        parse=parse.positive,
+        metavar="KG",
+        help="the robot's known total mass, held by a constraint on the sum of the masses",
+    )
+    flat_contacts: tuple[str, ...] = option(
+        (),
+        group="floating",
+        parse=parse.names,
+        metavar="F1,F2",
+        help="contact frames that pass a moment too (flat feet, a hand gripping): with "
+        "contact flags only, six directions are projected out for each, three (a force) for "
+        "the others (point feet)",
+    )
     compute: Compute = option(group="compute", default_factory=Compute, cli=False, help="")
 
     def __post_init__(self) -> None:
@@ -488,6 +489,11 @@ class Options:
             raise IdentificationError(
                 "the description prior acts in the projection: it needs project=True"
             )
+        if self.total_mass is not None and not 0 < parse.number(self.total_mass) < float("inf"):
+            raise IdentificationError(
+                f"total_mass must be None or a positive mass in kg, got {self.total_mass!r}"
+            )
+        object.__setattr__(self, "flat_contacts", _names(self.flat_contacts, "flat_contacts"))
         if self.skip_start == "auto" and self.period is None:
             raise IdentificationError("skip_start='auto' needs a period ('auto' or seconds)")
         if (
@@ -510,6 +516,13 @@ class Options:
     def replace(self, **changes) -> Options:
         """A copy with ``changes`` (``Options`` is frozen)."""
         return replace(self, **changes)
+
+
+def _names(value, what: str) -> tuple[str, ...]:
+    names = (value,) if isinstance(value, str) else tuple(value)
+    if not all(isinstance(n, str) for n in names):
+        raise IdentificationError(f"{what} must be frame names, got {value!r}")
+    return names
 
 
 def cli_fields(cls=Options) -> list[Field]:

@@ -25,6 +25,8 @@ reads it), ``validation.npz`` (the held-out q, qd, qdd, tau the figures were com
 tables) and the PNG figures.
 """
 
+from ._legged import legged_markdown as legged_markdown
+from ._legged import write_legged as write_legged
 from ._report import IdentificationReport as IdentificationReport
 from ._report import TorqueFit as TorqueFit
 from ._report import make_report as make_report
