@@ -6,8 +6,9 @@
 The robot is example-robot-data's Go2 with every body perturbed by up to 20 %
 (`torchjfa.sim.simulate_legged`, ``perturb=0.2``): the description is not the truth. Two logs of
 the same robot with different motions: one identifies, the other (noise-free) judges. The
-training log gets sensor noise (base position 1 mm, quaternion components 2e-3, joint angles
-2e-4 rad, joint torques 0.2 N m, foot forces 1 N and moments 0.02 N m), then
+training log gets sensor noise (`torchjfa.sim.SimulatedLeggedLog.noisy`: base position 1 mm,
+quaternion components 2e-3, joint angles 2e-4 rad, joint torques 0.2 N m, foot forces 1 N and
+moments 0.02 N m), then
 `torchjfa.data.prepare_legged` differentiates its pose at a 10 Hz cut-off (no velocity is
 logged), and its first and last second are dropped.
 
@@ -46,21 +47,6 @@ STANCE = {f"{leg}_{j}_joint": v for leg in ("FL", "FR", "RL", "RR") for j, v in
           (("thigh", 0.8), ("calf", -1.5))}  # fmt: skip
 CUTOFF_HZ = 10.0
 PRIOR_WEIGHT = 1.0
-
-
-def noisy(log, rng):
-    """The log as sensors would give it: noise on the pose, joints, torques and wrenches; no
-    velocities or accelerations."""
-    T = len(log.t)
-    q = log.q.copy()
-    q[:, :3] += rng.normal(scale=1e-3, size=(T, 3))
-    quat = q[:, 3:7] + rng.normal(scale=2e-3, size=(T, 4))
-    q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    q[:, 7:] += rng.normal(scale=2e-4, size=q[:, 7:].shape)
-    tau = log.tau + rng.normal(scale=0.2, size=log.tau.shape)
-    scale = np.array([1.0, 1.0, 1.0, 0.02, 0.02, 0.02])
-    wrench = {k: w + scale * rng.normal(size=w.shape) for k, w in log.wrench.items()}
-    return replace(log, q=q, v=None, a=None, tau=tau, wrench=wrench)
 
 
 def trimmed(log, seconds: float):
@@ -139,9 +125,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     train = simulate_legged(path, FEET, STANCE, seconds=seconds + 2.0, perturb=0.2, seed=1)
     test = simulate_legged(path, FEET, STANCE, seconds=5.0, perturb=0.2, seed=2)
-    prepared = trimmed(
-        prepare_legged(noisy(train, np.random.default_rng(0)), cutoff_hz=CUTOFF_HZ), 1.0
-    )
+    prepared = trimmed(prepare_legged(train.noisy(seed=0), cutoff_hz=CUTOFF_HZ), 1.0)
     print(f"simulated and prepared in {time.perf_counter() - start:.1f} s: "
           f"{len(prepared.t)} training samples, {len(test.t)} held out")  # fmt: skip
     truth = float(train.theta.reshape(-1, 10)[:, 0].sum())

@@ -111,8 +111,101 @@ def add_simulate(sub) -> argparse.ArgumentParser:
         "(default: a random excitation)",
     )
     add_simulation_options(p, no_unmodeled=True)
+    _add_legged(p)
     p.set_defaults(func=cmd_simulate)
     return p
+
+
+def _add_legged(p: argparse.ArgumentParser) -> None:
+    """The options of a floating-base robot's simulation (`torchjfa.sim.simulate_legged`)."""
+    from ..sim import simulate_legged
+
+    g = p.add_argument_group(
+        "a floating-base robot (legged robot, humanoid)",
+        "With --feet, ROBOT is a floating-base URDF (its root link the base) simulated "
+        "standing on a floor and swaying its body under joint PD control; the log holds "
+        "the base pose, joint positions and torques, contact_<foot> flags and the ground's "
+        "forces and moments on each foot (f_<foot>_x.., m_<foot>_x..), with sensor noise.",
+    )
+    g.add_argument("--feet", type=_names, default=None, metavar="F1,F2",
+                   help="the links that touch the ground (a sphere at each)")  # fmt: skip
+    g.add_argument(
+        "--stance",
+        type=_stance,
+        default={},
+        metavar="J=RAD,...",
+        help="the standing pose: joint=position, rad (joints not named stay at 0)",
+    )
+    g.add_argument("--seconds", type=float, default=default_of(simulate_legged, "seconds"),
+                   help="recorded time, s")  # fmt: skip
+    g.add_argument(
+        "--perturb",
+        type=float,
+        default=default_of(simulate_legged, "perturb"),
+        help="the simulated bodies differ from the description by up to this fraction "
+        "(masses, inertias; centres of mass by this times 5 cm)",
+    )
+    g.add_argument("--truth-seed", type=int, default=0, help="seed of the perturbation")
+    g.add_argument("--no-forces", action="store_true",
+                   help="write contact flags only, no forces (no force sensors)")  # fmt: skip
+
+
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(s.strip() for s in text.split(",") if s.strip())
+    if not names:
+        raise argparse.ArgumentTypeError("give one or more link names, comma separated")
+    return names
+
+
+def _stance(text: str) -> dict[str, float]:
+    out = {}
+    for item in (s.strip() for s in text.split(",") if s.strip()):
+        name, eq, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq or not name.strip():
+            raise argparse.ArgumentTypeError(f"expected joint=radians, got {item!r}")
+    return out
+
+
+def _simulate_legged(args) -> int:
+    """``torchjfa simulate ROBOT --feet ...``: a floating-base robot standing and swaying."""
+    from dataclasses import replace
+
+    from ..sim import simulate_legged
+
+    given = [a.split("=")[0] for a in args.argv if a.startswith("--")]
+    arm_only = sorted({"--n-samples", "--trajectory", "--full", "--no-velocity",
+                       "--no-unmodeled", "--description-effects", *(f"--{k}" for k in
+                       _EFFECT_OPTIONS)} & set(given))  # fmt: skip
+    if arm_only:
+        raise UsageError(f"{', '.join(arm_only)}: not for a floating-base robot (--feet)")
+    if not args.noise_scale >= 0:
+        raise UsageError(f"--noise-scale must be non-negative, got {args.noise_scale:g}")
+    out = Path(args.out)
+    if out.suffix.lower() not in (".csv", ".npz"):
+        raise UsageError(f"a legged log is written as .csv or .npz, got {args.out!r}")
+    try:
+        log = simulate_legged(
+            args.robot, args.feet, args.stance, seconds=args.seconds,
+            rate=args.rate or 200.0, perturb=args.perturb, truth_seed=args.truth_seed,
+            seed=args.seed, progress=not args.quiet,
+        )  # fmt: skip
+    except (ValueError, OSError) as exc:
+        raise usage(exc) from None
+    written = log.noisy(args.noise_scale, seed=args.seed + 1)
+    if args.no_forces:
+        written = replace(written, wrench={})
+    written.save(out)
+    mass = float(log.theta.reshape(-1, 10)[:, 0].sum())
+    print(
+        f"wrote {len(log.t)} samples ({args.seconds:g} s) of the simulated {Path(args.robot).name} "
+        f"(total mass {mass:.4g} kg) to {out}; identify with:\n"
+        f"  torchjfa identify {shlex.quote(args.robot)} {shlex.quote(str(out))} --out result/"
+    )
+    return 0
 
 
 def _effects(args, names: tuple[str, ...]) -> dict[str, object]:
@@ -191,6 +284,8 @@ def cmd_simulate(args) -> int:
     from ..data import JointLog, write_log
     from ..sim import limit_warnings, simulate
 
+    if args.feet:
+        return _simulate_legged(args)
     if not args.noise_scale >= 0:
         raise UsageError(f"--noise-scale must be non-negative, got {args.noise_scale:g}")
     robot = simulated_robot(args, unmodeled=not args.no_unmodeled)

@@ -31,6 +31,7 @@ from ._generate import DEFAULT_N_SAMPLES as DEFAULT_N_SAMPLES
 from ._generate import DEFAULT_RATE as DEFAULT_RATE
 from ._generate import DEFAULT_RATES as DEFAULT_RATES
 from ._generate import generate_log as generate_log
+from ._legged import LEGGED_NOISE as LEGGED_NOISE
 from ._legged import SimulatedLeggedLog as SimulatedLeggedLog
 from ._legged import simulate_legged as simulate_legged
 from ._log import SensorNoise as SensorNoise

@@ -28,7 +28,19 @@ from ..dynamics import FloatingBaseModel
 from ..dynamics._mjcf import strip_urdf_for_mujoco
 from ..dynamics._tree import quat_matrix, transform_inertial_np
 
-__all__ = ["SimulatedLeggedLog", "simulate_legged"]
+__all__ = ["LEGGED_NOISE", "SimulatedLeggedLog", "simulate_legged"]
+
+#: the sensor noise of `SimulatedLeggedLog.noisy` at scale 1, standard deviations: base position
+#: (m), each base quaternion component, joint positions (rad), joint torques (N m), contact
+#: forces (N) and moments (N m)
+LEGGED_NOISE = {
+    "base_position": 1e-3,
+    "base_quaternion": 2e-3,
+    "joint_position": 2e-4,
+    "joint_torque": 0.2,
+    "force": 1.0,
+    "moment": 0.02,
+}
 
 _TIMESTEP = 0.001  # s
 _KP, _KD = 100.0, 3.0  # N m/rad, N m s/rad: stiff enough to stand, soft enough to sway
@@ -47,6 +59,30 @@ class SimulatedLeggedLog(LeggedLog):
     """
 
     theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def noisy(self, scale: float = 1.0, seed: int = 0) -> LeggedLog:
+        """The log as sensors would give it: Gaussian noise of `LEGGED_NOISE` times ``scale``
+        on the base pose (the quaternion normalised again), the joint positions, the joint
+        torques and the contact wrenches; no velocities or accelerations (they are
+        differentiated from the pose, `torchjfa.data.prepare_legged`), no truth.
+
+        Raises:
+            ValueError: on a negative or non-finite ``scale``.
+        """
+        if not 0 <= scale < float("inf"):
+            raise ValueError(f"the noise scale must be finite and >= 0, got {scale}")
+        rng, sd = np.random.default_rng(seed), {k: scale * v for k, v in LEGGED_NOISE.items()}
+        T = len(self.t)
+        q = self.q.copy()
+        q[:, :3] += rng.normal(scale=sd["base_position"], size=(T, 3))
+        quat = q[:, 3:7] + rng.normal(scale=sd["base_quaternion"], size=(T, 4))
+        q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        q[:, 7:] += rng.normal(scale=sd["joint_position"], size=q[:, 7:].shape)
+        tau = self.tau + rng.normal(scale=sd["joint_torque"], size=self.tau.shape)
+        w_sd = np.array([sd["force"]] * 3 + [sd["moment"]] * 3)
+        wrench = {k: w + w_sd * rng.normal(size=w.shape) for k, w in self.wrench.items()}
+        return LeggedLog(self.t.copy(), q, None, None, tau, dict(self.contact), wrench,
+                         self.joint_names, dict(self.info))  # fmt: skip
 
 
 def _spec(path: str, feet: Sequence[str], radius: float) -> mujoco.MjSpec:

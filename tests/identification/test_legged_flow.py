@@ -1,0 +1,199 @@
+"""The floating-base flow (`identify_legged`, ``torchjfa identify`` on a legged log) on a
+simulated Go2 whose bodies differ from its description: what it finds against the simulated
+truth, what it writes (read back by Pinocchio), and its errors on bad input."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from _robots import GO2_FEET, GO2_STANCE, erd_path
+
+from torchjfa.cli import main
+from torchjfa.data import LogError
+from torchjfa.dynamics import FloatingBaseModel
+from torchjfa.identification import (
+    IdentificationError,
+    IdentificationWarning,
+    LeggedIdentification,
+    Options,
+    contact_equations,
+    contact_moments,
+    identify,
+    identify_legged,
+    row_moments,
+)
+from torchjfa.sim import simulate_legged
+
+#: every test here prepares at this cut-off (the choice among cut-offs needs longer logs)
+CUTOFF = 10.0
+
+
+@pytest.fixture(scope="module")
+def go2(tmp_path_factory):
+    """The Go2 description, a noise-free simulated log of a perturbed Go2 (10 s at 100 Hz)
+    written as CSV with forces and as CSV with contact flags only, and the truth's mass."""
+    path = erd_path("go2_description/urdf/go2.urdf")
+    log = simulate_legged(path, GO2_FEET, GO2_STANCE, seconds=10.0, rate=100.0, perturb=0.2,
+                          seed=1)  # fmt: skip
+    folder = tmp_path_factory.mktemp("go2")
+    forces, flags = folder / "forces.csv", folder / "flags.csv"
+    log.save(forces)
+    replace(log, wrench={}).save(flags)
+    truth = float(log.theta.reshape(-1, 10)[:, 0].sum())
+    return {"path": path, "log": log, "forces": forces, "flags": flags, "mass": truth}
+
+
+def test_with_forces_it_finds_the_total_mass_and_predicts_better_than_the_description(go2):
+    ident = identify(go2["path"], go2["forces"], Options(cutoff=CUTOFF))
+    assert isinstance(ident, LeggedIdentification)  # the base columns chose the flow
+    assert ident.rows == "all" and ident.consistent
+    # noise-free data whose motion (below 1 Hz) the 10 Hz filter leaves intact: the base rows
+    # give the mass to the filter's and the integrator's error, far inside 0.5 %
+    assert ident.total_mass == pytest.approx(go2["mass"], rel=5e-3)
+    assert ident.ratio() < 0.5
+    # every body's mass is within the fit's reach of the truth where the data determine it:
+    # the base, the heaviest body, within 5 %
+    assert ident.masses()["base"] == pytest.approx(float(go2["log"].theta[0]), rel=0.05)
+
+
+def test_the_base_rows_alone_give_the_total_mass(go2):
+    ident = identify_legged(go2["path"], go2["forces"],
+                            Options(cutoff=CUTOFF, base_rows_only=True))  # fmt: skip
+    assert ident.rows == "base" and ident.row_labels[:3] == (
+        "base force x", "base force y", "base force z",
+    )  # fmt: skip
+    assert len(ident.held_out["identified"]) == 6
+    assert ident.total_mass == pytest.approx(go2["mass"], rel=5e-3)
+
+
+def test_with_flags_only_the_total_mass_constraint_holds_and_a_warning_says_why(go2):
+    with pytest.warns(IdentificationWarning, match="weakly determined"):
+        loose = identify_legged(go2["path"], go2["flags"], Options(cutoff=CUTOFF))
+    assert loose.rows == "projected"
+    ident = identify_legged(go2["path"], go2["flags"],
+                            Options(cutoff=CUTOFF, total_mass=go2["mass"]))  # fmt: skip
+    # the constraint row weighs 1e6 times the data's largest diagonal entry
+    assert ident.total_mass == pytest.approx(go2["mass"], rel=1e-5)
+    assert ident.consistent
+    assert ident.ratio() < 1.0
+
+
+def test_row_moments_match_the_rows_formed_one_by_one(go2):
+    model = FloatingBaseModel.from_urdf(go2["path"], friction=("viscous",))
+    log = go2["log"].select(np.arange(0, 200, 7))
+    rm = row_moments(model, log, chunk_size=5)
+    Y, y = contact_equations(model, log.q, log.v, log.a, log.tau, wrenches=log.wrench)
+    theta = model.nominal_theta
+    direct = (Y @ theta - y).pow(2).mean(0).sqrt()
+    torch.testing.assert_close(rm.rms(theta), direct, rtol=1e-6, atol=1e-9)
+    torch.testing.assert_close(rm.target_rms(), y.pow(2).mean(0).sqrt())
+    whole = contact_moments(model, log)
+    torch.testing.assert_close(rm.combined().xtx, whole.xtx)
+    w = torch.linspace(0.5, 2.0, Y.shape[1], dtype=torch.float64)
+    weighted = torch.einsum("brp,r,brq->pq", Y, w, Y)
+    torch.testing.assert_close(rm.combined(w).xtx, weighted)
+
+
+def test_the_command_writes_a_report_and_a_urdf_that_pinocchio_reads(go2, tmp_path, capsys):
+    pin = pytest.importorskip("pinocchio")
+    out = tmp_path / "result"
+    rc = main(["identify", go2["path"], str(go2["forces"]), "--out", str(out), "--quiet",
+               "--cutoff", str(CUTOFF), "--no-plots"])  # fmt: skip
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "floating base" in printed and "report:" in printed
+    summary = json.loads((out / "report.json").read_text())
+    assert summary["rows"] == "all" and summary["consistent"]
+    text = (out / "report.md").read_text()
+    assert "## Held-out prediction" in text and "base force z" in text
+    pm = pin.buildModelFromUrdf(str(out / "identified.urdf"), pin.JointModelFreeFlyer())
+    total = sum(float(inertia.mass) for inertia in pm.inertias)
+    assert total == pytest.approx(summary["total_mass"], rel=1e-12)
+    # the written description, read back, holds the identified inertial parameters
+    back = FloatingBaseModel.from_urdf(out / "identified.urdf", friction=())
+    rows = {name: float(v) for name, v in zip(
+        (line.split(",")[0] for line in (out / "parameters.csv").read_text().splitlines()[1:]),
+        (line.split(",")[3] for line in (out / "parameters.csv").read_text().splitlines()[1:]),
+        strict=True,
+    )}  # fmt: skip
+    for name, value in zip(back.parameter_names, back.nominal_theta.tolist(), strict=True):
+        assert value == pytest.approx(rows[name], rel=1e-9, abs=1e-12), name
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--drive-gains", "1,2"], "drive_gains"),
+        (["--base-rows-only", "LOG=flags"], "needs the contact forces"),
+        (["--flat-contacts", "nose"], "not contact frames"),
+        (["--appendix"], "--appendix"),
+    ],
+)
+def test_the_command_stops_with_one_line_on_options_the_logs_cannot_serve(
+    go2, tmp_path, capsys, extra, message
+):
+    log = go2["flags"] if "LOG=flags" in extra else go2["forces"]
+    extra = [e for e in extra if e != "LOG=flags"]
+    if "--flat-contacts" in extra:
+        log = go2["flags"]
+    rc = main(["identify", go2["path"], str(log), "--out", str(tmp_path / "r"), "--quiet",
+               "--cutoff", str(CUTOFF), *extra])  # fmt: skip
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_log_whose_joints_or_frames_do_not_match_names_them(go2, tmp_path):
+    log = go2["log"]
+    bad = replace(
+        log,
+        joint_names=("FL_hip_joint_x", *log.joint_names[1:]),
+        contact={"FL_toe" if k == "FL_foot" else k: v for k, v in log.contact.items()},
+    )
+    path = tmp_path / "bad.csv"
+    bad.save(path)
+    with pytest.raises(LogError) as info:
+        identify_legged(go2["path"], path, Options(cutoff=CUTOFF))
+    text = str(info.value)
+    assert "FL_hip_joint_x" in text and "['FL_hip_joint']" in text and "FL_toe" in text
+
+
+def test_a_short_log_warns_that_the_cut_off_was_not_chosen(go2):
+    with pytest.warns(IdentificationWarning, match="too short to choose the cut-off"):
+        ident = identify_legged(go2["path"], go2["log"], Options(max_seconds=6.0))
+    assert ident.cutoff_how == "the default"
+
+
+def test_arm_options_are_refused_for_a_floating_base(go2):
+    with pytest.raises(IdentificationError, match="jackknife"):
+        identify_legged(go2["path"], go2["log"], Options(jackknife=5))
+
+
+def test_simulate_then_identify_on_the_command_line(go2, tmp_path, capsys):
+    log = tmp_path / "go2.csv"
+    stance = ",".join(f"{j}={v}" for j, v in GO2_STANCE.items())
+    rc = main(["simulate", go2["path"], "--feet", ",".join(GO2_FEET), "--stance", stance,
+               "--seconds", "8", "--rate", "100", "--perturb", "0.2", "--out", str(log),
+               "--quiet"])  # fmt: skip
+    assert rc == 0
+    assert "torchjfa identify" in capsys.readouterr().out
+    header = log.read_text().splitlines()[0].split(",")
+    assert {"base_qw", "contact_FL_foot", "f_RR_foot_z", "m_RR_foot_z", "tau_FL_calf_joint"} <= set(
+        header
+    )
+    rc = main(["identify", go2["path"], str(log), "--out", str(tmp_path / "r"), "--quiet",
+               "--cutoff", str(CUTOFF), "--no-plots"])  # fmt: skip
+    assert rc == 0
+    summary = json.loads((tmp_path / "r" / "report.json").read_text())
+    # the same perturbed robot (truth seed 0) as the module's log: its mass, with the default
+    # sensor noise (1 N on each force), to well within 2 %
+    assert summary["total_mass"] == pytest.approx(go2["mass"], rel=0.02)
+    rc = main(["simulate", go2["path"], "--feet", "FL_foot", "--n-samples", "10",
+               "--out", str(tmp_path / "x.csv")])  # fmt: skip
+    assert rc == 2
+    assert "not for a floating-base robot" in capsys.readouterr().err
