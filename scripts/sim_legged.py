@@ -2,6 +2,7 @@
 
     python scripts/sim_legged.py             # 60 s of training data
     python scripts/sim_legged.py --smoke     # 8 s, a check
+    python scripts/sim_legged.py --write-docs  # and into docs/benchmarks.md
 
 The robot is example-robot-data's Go2 with every body perturbed by up to 20 %
 (`torchjfa.sim.simulate_legged`, ``perturb=0.2``): the description is not the truth. Two logs of
@@ -33,6 +34,7 @@ import time
 import warnings
 from dataclasses import replace
 
+import _benchmarks_page as page
 import numpy as np
 import torch
 
@@ -112,8 +114,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="training log, s")
     parser.add_argument("--smoke", action="store_true", help="8 s of training data, a check")
+    page.add_option(parser)
     args = parser.parse_args(argv)
-    seconds = 8.0 if args.smoke else args.seconds
+    with page.recording("sim_legged", "sim_legged", args.write_docs, argv, smoke=args.smoke):
+        return run(8.0 if args.smoke else args.seconds, args.smoke)
+
+
+def run(seconds: float, smoke: bool) -> int:
+    """Simulate, identify and judge (the module); prints the table."""
     path = torchjfa.robots.example_robot_data_path("go2_description/urdf/go2.urdf")
     start = time.perf_counter()
     train = simulate_legged(path, FEET, STANCE, seconds=seconds, perturb=0.2, seed=1)
@@ -126,7 +134,7 @@ def main(argv=None) -> int:
     pinocchio = PinocchioRows(path, bare)
     print(f"{'contact information':20s} {'fit':10s} {'held-out RMS':>13s} {'ratio':>7s} "
           f"{'total mass error':>17s} {'consistent':>11s}")  # fmt: skip
-    options = Options(cutoff=CUTOFF_HZ) if args.smoke else Options()
+    options = Options(cutoff=CUTOFF_HZ) if smoke else Options()
     for kind in ("forces", "flags"):
         log = noisy if kind == "forces" else replace(noisy, wrench={})
         with warnings.catch_warnings():
