@@ -50,6 +50,7 @@ def test_free_flyer_regressor_equals_pinocchio(name):
     assert Y.shape == (6, 6 + model.n_dof, model.n_params)
     tau = model.inverse_dynamics(q, v, a, model.nominal_theta).numpy()
     M = model.mass_matrix(q).numpy()
+    com = model.center_of_mass(q).numpy()
     for b in range(q.shape[0]):
         Y_ref = ref.regressor(q[b], v[b], a[b])
         # two float64 recursions over the same decimal inputs: eps times the ~1e4 operations
@@ -60,6 +61,9 @@ def test_free_flyer_regressor_equals_pinocchio(name):
         np.testing.assert_allclose(tau[b], tau_ref, rtol=0, atol=1e-12 * np.abs(tau_ref).max())
         M_ref = ref.crba(q[b])
         np.testing.assert_allclose(M[b], M_ref, rtol=0, atol=1e-12 * np.abs(M_ref).max())
+        com_ref = pin.centerOfMass(ref.pm, ref.pd, ref.state(q[b], v[b], a[b])[0])
+        # a sum over the bodies of positions of order 1 m: round-off far below 1e-12 m
+        np.testing.assert_allclose(com[b], com_ref, rtol=0, atol=1e-12)
 
 
 def test_free_flyer_mass_matrix_equals_mujoco():

@@ -197,3 +197,33 @@ def test_simulate_then_identify_on_the_command_line(go2, tmp_path, capsys):
                "--out", str(tmp_path / "x.csv")])  # fmt: skip
     assert rc == 2
     assert "not for a floating-base robot" in capsys.readouterr().err
+
+
+#: a Unitree G1 standing on flat feet (four corner spheres each), knees bent, its waist and
+#: arms moving while its legs hold the stance
+G1 = "g1_description/urdf/g1_29dof_rev_1_0.urdf"
+G1_FEET = ("left_ankle_roll_link", "right_ankle_roll_link")
+G1_STANCE = {f"{s}_{j}_joint": v for s in ("left", "right")
+             for j, v in (("hip_pitch", -0.3), ("knee", 0.6), ("ankle_pitch", -0.3))}  # fmt: skip
+G1_MOTION = {"waist_yaw_joint": 0.1, **{f"{s}_{j}_joint": 0.1 for s in ("left", "right")
+                                          for j in ("shoulder_pitch", "elbow", "wrist_pitch")}}  # fmt: skip
+
+
+def test_a_humanoid_with_force_sensors_at_its_feet_gives_its_mass_and_centre_of_mass():
+    path = erd_path(G1)
+    log = simulate_legged(path, G1_FEET, G1_STANCE, seconds=8.0, rate=200.0, amplitude=G1_MOTION,
+                          foot_size=(0.2, 0.08), gains=(300.0, 10.0), perturb=0.2)  # fmt: skip
+    assert all(w.shape[1] == 6 for w in log.wrench.values())  # six-axis sensors
+    assert min(float(c.mean()) for c in log.contact.values()) == 1.0  # both feet stay down
+    ident = identify_legged(path, log, Options(cutoff=CUTOFF, base_rows_only=True))
+    truth = torch.as_tensor(log.theta)
+    assert ident.total_mass == pytest.approx(float(truth.reshape(-1, 10)[:, 0].sum()), rel=5e-3)
+    bare = FloatingBaseModel.from_urdf(path, friction=())
+    found = torch.cat([ident.theta[:10],
+                       ident.model.joints.layout.split(ident.theta[10:])[0].reshape(-1)])  # fmt: skip
+    q = torch.as_tensor(log.q[len(log.t) // 2])
+    com, com_true = bare.center_of_mass(q, found), bare.center_of_mass(q, truth)
+    # the base rows hold m g x c: the horizontal centre of mass, to 1 % of its height above
+    # the ground; its height needs the base to tilt, which a robot standing level does not
+    height = float(com_true[2])
+    assert float((com - com_true)[:2].norm()) < 0.01 * height

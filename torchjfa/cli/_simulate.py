@@ -145,6 +145,19 @@ def _add_legged(p: argparse.ArgumentParser) -> None:
         help="the simulated bodies differ from the description by up to this fraction "
         "(masses, inertias; centres of mass by this times 5 cm)",
     )
+    g.add_argument(
+        "--amplitude",
+        type=_amplitude,
+        default=default_of(simulate_legged, "amplitude"),
+        metavar="RAD|J=RAD,...",
+        help="each joint's sway about the stance, rad (hips 40 %% of it), or joint=rad for "
+        "the joints that move (the others hold the stance: a humanoid's legs)",
+    )
+    g.add_argument("--foot-size", type=numbers, default=None, metavar="L,W",
+                   help="flat feet: a sphere at each corner of an L x W m rectangle about each "
+                   "foot frame (a humanoid's soles); default point feet")  # fmt: skip
+    g.add_argument("--gains", type=numbers, default=default_of(simulate_legged, "gains"),
+                   metavar="KP,KD", help="the joints' PD gains (raise them for a heavy robot)")  # fmt: skip
     g.add_argument("--truth-seed", type=int, default=0, help="seed of the perturbation")
     g.add_argument("--no-forces", action="store_true",
                    help="write contact flags only, no forces (no force sensors)")  # fmt: skip
@@ -155,6 +168,13 @@ def _names(text: str) -> tuple[str, ...]:
     if not names:
         raise argparse.ArgumentTypeError("give one or more link names, comma separated")
     return names
+
+
+def _amplitude(text: str) -> float | dict[str, float]:
+    try:
+        return float(text)
+    except ValueError:
+        return _stance(text)
 
 
 def _stance(text: str) -> dict[str, float]:
@@ -168,6 +188,14 @@ def _stance(text: str) -> dict[str, float]:
         if not eq or not name.strip():
             raise argparse.ArgumentTypeError(f"expected joint=radians, got {item!r}")
     return out
+
+
+def _pair(values, flag: str) -> tuple[float, float] | None:
+    if values is None:
+        return None
+    if len(values) != 2 or not all(0 < v < float("inf") for v in values):
+        raise UsageError(f"{flag} takes two positive numbers, got {list(values)}")
+    return (float(values[0]), float(values[1]))
 
 
 def _simulate_legged(args) -> int:
@@ -191,7 +219,8 @@ def _simulate_legged(args) -> int:
         log = simulate_legged(
             args.robot, args.feet, args.stance, seconds=args.seconds,
             rate=args.rate or 200.0, perturb=args.perturb, truth_seed=args.truth_seed,
-            seed=args.seed, progress=not args.quiet,
+            seed=args.seed, progress=not args.quiet, amplitude=args.amplitude,
+            foot_size=_pair(args.foot_size, "--foot-size"), gains=_pair(args.gains, "--gains"),
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         raise usage(exc) from None

@@ -255,6 +255,32 @@ class FloatingBaseModel:
         M = (tau[:, :-1] - tau[:, -1:]).transpose(1, 2)  # column j: tau(e_j) - tau(0)
         return M.reshape(*batch, 6 + n, 6 + n)
 
+    def center_of_mass(self, q, theta=None) -> torch.Tensor:
+        """The whole robot's centre of mass in the world frame, m.
+
+        Args:
+            q: ``(*batch, 7 + n_dof)``, as in `regressor`.
+            theta: ``(n_params,)``; default `nominal_theta`.
+
+        Returns:
+            ``(*batch, 3)``.
+
+        Raises:
+            ValueError: on a bad q or theta, or a total mass that is not positive.
+        """
+        q = self._check_q(q)
+        theta = self.nominal_theta.to(q) if theta is None else self._check_theta(theta, q)
+        inertial, _ = self.joints.layout.split(theta[10:])
+        total = theta[0] + inertial[:, 0].sum()
+        if not bool(total > 0):
+            raise ValueError(f"the total mass is {float(total)} kg; it must be positive")
+        rots, poss = body_poses(q[..., 7:], self.joints._consts(q.dtype, q.device))
+        h = theta[1:4].expand(*q.shape[:-1], 3)
+        for k in range(self.n_dof):
+            h = h + poss[k] * inertial[k, 0] + rots[k] @ inertial[k, 1:4]
+        R = quaternion_matrix(q[..., 3:7])
+        return q[..., :3] + (R @ (h / total)[..., None])[..., 0]
+
     def write_urdf(self, theta, path: str | os.PathLike) -> None:
         """Write the URDF this model was read from with theta's inertials (the base's on the
         root link, whose fixed children keep none) and joint friction; as

@@ -85,7 +85,7 @@ class SimulatedLeggedLog(LeggedLog):
                          self.joint_names, dict(self.info))  # fmt: skip
 
 
-def _spec(path: str, feet: Sequence[str], radius: float) -> mujoco.MjSpec:
+def _spec(path: str, feet: Sequence[str], radius: float, size=None) -> mujoco.MjSpec:
     root = strip_urdf_for_mujoco(
         ET.parse(path).getroot(), fusestatic="false", balanceinertia="false"
     )
@@ -96,8 +96,14 @@ def _spec(path: str, feet: Sequence[str], radius: float) -> mujoco.MjSpec:
     missing = [f for f in feet if f not in bodies]
     if missing:
         raise ValueError(f"no link named {missing} in {path!r} (the feet must be links)")
+    corners = [(0.0, 0.0)] if size is None else [
+        (sx * size[0] / 2, sy * size[1] / 2) for sx in (-1, 1) for sy in (-1, 1)
+    ]  # fmt: skip
     for foot in feet:
-        bodies[foot].add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=0.0)
+        for x, y in corners:
+            bodies[foot].add_geom(
+                type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], pos=[x, y, 0.0], mass=0.0
+            )
     spec.worldbody.add_geom(
         name="torchjfa_floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[10, 10, 0.1]
     )
@@ -184,6 +190,20 @@ def _foot_wrenches(
     return on, wrench
 
 
+def _gains(model: FloatingBaseModel, q0: np.ndarray, gains) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's PD gains: ``gains``, capped at ``I / dt^2`` and ``I / dt`` with
+    ``I`` the joint's effective inertia at the stance with every other joint and the base
+    free, ``1 / (M^-1)_jj`` of the description's mass matrix (the semi-implicit Euler step
+    is stable below ``4 I / dt^2`` and ``2 I / dt``: room for a perturbed
+    body)."""
+    kp, kd = (float(g) for g in gains)
+    if not (kp > 0 and kd >= 0):
+        raise ValueError(f"gains must be kp > 0 and kd >= 0, got {gains}")
+    q = np.concatenate([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], q0])
+    inertia = 1.0 / np.diag(np.linalg.inv(model.mass_matrix(q).numpy()))[6:]
+    return np.minimum(kp, inertia / _TIMESTEP**2), np.minimum(kd, inertia / _TIMESTEP)
+
+
 def simulate_legged(
     robot: str | os.PathLike,
     feet: Sequence[str],
@@ -191,8 +211,10 @@ def simulate_legged(
     *,
     seconds: float = 20.0,
     rate: float = 200.0,
-    amplitude: float = 0.15,
+    amplitude: float | Mapping[str, float] = 0.15,
     foot_radius: float = 0.02,
+    foot_size: tuple[float, float] | None = None,
+    gains: tuple[float, float] = (_KP, _KD),
     perturb: float = 0.0,
     truth_seed: int = 0,
     seed: int = 0,
@@ -202,14 +224,23 @@ def simulate_legged(
 
     Args:
         robot: a floating-base URDF (its root link is the base).
-        feet: the links that touch the ground (a sphere of ``foot_radius`` at each origin).
+        feet: the links that touch the ground (a sphere of ``foot_radius`` at each origin,
+            or four with ``foot_size``).
         stance: joint -> position (rad) of the standing pose; joints not named stay at 0. The
             base starts level, its height such that the lowest foot touches the ground.
         seconds: recorded time, s (after 2.5 s of settling and growing motion).
         rate: recorded samples per second (the simulation runs at 1 kHz).
         amplitude: each joint's motion about the stance, rad: a sum of two sines with random
             frequencies (0.2-0.8 Hz) and phases; hip joints (named ``*hip*``) move 40 % of it.
+            Or joint -> amplitude, rad: the joints not named hold the stance (a humanoid's
+            legs, say).
         foot_radius: m.
+        foot_size: ``(length, width)``, m, of flat feet: a sphere at each corner of that
+            rectangle, centred on the foot frame's origin in its x-y plane (a sole frame), so
+            that each foot takes a moment; None: point feet.
+        gains: the joints' PD gains, N m/rad and N m s/rad (raise them for a heavy robot);
+            each joint's are capped where its inertia at the stance is too small for them to
+            stay stable at the simulation's 1 ms step (a wrist's).
         perturb: the simulated robot's bodies differ from the description by this fraction
             (masses and principal inertias scaled by up to ``1 +- perturb``, centres of mass
             moved by ``perturb * 5 cm`` per axis); 0 simulates the description.
@@ -231,7 +262,7 @@ def simulate_legged(
     unknown = sorted(set(stance) - set(model.joint_names))
     if unknown:
         raise ValueError(f"stance names {unknown}, which are not joints of {path!r}")
-    spec = _spec(path, tuple(feet), foot_radius)
+    spec = _spec(path, tuple(feet), foot_radius, foot_size)
     mj = (
         _perturb(spec, float(perturb), np.random.default_rng(truth_seed))
         if perturb
@@ -250,7 +281,14 @@ def simulate_legged(
     mujoco.mj_forward(mj, data)
     freq = rng.uniform(0.2, 0.8, size=(len(joints), 2))
     phase = rng.uniform(0.0, 2 * np.pi, size=(len(joints), 2))
-    amp = np.array([amplitude * (0.4 if "hip" in j else 1.0) for j in joints])
+    if isinstance(amplitude, Mapping):
+        unknown = sorted(set(amplitude) - set(joints))
+        if unknown:
+            raise ValueError(f"amplitude names {unknown}, which are not joints of {path!r}")
+        amp = np.array([float(amplitude.get(j, 0.0)) for j in joints])
+    else:
+        amp = np.array([amplitude * (0.4 if "hip" in j else 1.0) for j in joints])
+    kp, kd = _gains(model, q0, gains)
     foot_body = {mj.body(f).id: k for k, f in enumerate(feet)}
     every = max(1, round(1.0 / (rate * _TIMESTEP)))
     n_steps = round((_SETTLE + seconds) / _TIMESTEP)
@@ -263,7 +301,7 @@ def simulate_legged(
             wave = 0.6 * np.sin(2 * np.pi * freq[:, 0] * t + phase[:, 0]) + 0.4 * np.sin(
                 2 * np.pi * freq[:, 1] * t + phase[:, 1]
             )
-            data.ctrl[:] = _KP * (q0 + ramp * amp * wave - data.qpos[qadr]) - _KD * data.qvel[vadr]
+            data.ctrl[:] = kp * (q0 + ramp * amp * wave - data.qpos[qadr]) - kd * data.qvel[vadr]
             mujoco.mj_step(mj, data)
             bar.update(1)
             if t < _SETTLE or step % every:
