@@ -336,7 +336,7 @@ def _option_blocks(help_text: str) -> dict[str, str]:
 
 def _shown(default) -> str:
     if isinstance(default, tuple):
-        return ",".join(default) or "none"
+        return ",".join(map(str, default)) or "none"
     return f"{default:g}" if isinstance(default, float) else str(default)
 
 

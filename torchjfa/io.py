@@ -59,7 +59,7 @@ import torch
 from ._util import MANIFEST, OutputError, atomic_file, check_output, output_folder
 from ._util import library_version as _library_version
 from .data import DEFAULT_CUTOFF_HZ
-from .dynamics import InverseDynamics, RigidBodyModel
+from .dynamics import FloatingBaseModel, InverseDynamics, RigidBodyModel
 
 __all__ = [
     "IdentifiedModel",
@@ -89,7 +89,8 @@ class IdentifiedModel:
     """The content of an identified-model file.
 
     Attributes:
-        model: the `RigidBodyModel` rebuilt from the stored description.
+        model: the `RigidBodyModel` rebuilt from the stored description (a
+            `torchjfa.dynamics.FloatingBaseModel` for a floating-base robot).
         theta: ``(n_params,)`` identified parameters (the stored dtype, float64 normally).
         extras: the user's extras, name -> ``torch.Tensor`` (numbers) or ``str``.
         library_version: the torchjfa version that wrote the file.
@@ -97,7 +98,7 @@ class IdentifiedModel:
         cutoff_hz: (read-only) the cut-off the model's logs were filtered at, Hz.
     """
 
-    model: RigidBodyModel
+    model: RigidBodyModel | FloatingBaseModel
     theta: torch.Tensor
     extras: dict[str, object] = field(default_factory=dict)
     library_version: str = ""
@@ -118,17 +119,25 @@ class IdentifiedModel:
         return value if 0 < value < math.inf else DEFAULT_CUTOFF_HZ
 
     def inverse_dynamics(self, *, trainable: bool | str = False) -> InverseDynamics:
-        """A ready `InverseDynamics` of ``model`` and ``theta``."""
+        """A ready `InverseDynamics` of ``model`` and ``theta`` (a fixed-base robot's)."""
+        if isinstance(self.model, FloatingBaseModel):
+            raise ValueError(
+                "InverseDynamics is a fixed-base robot's module; use the FloatingBaseModel's "
+                "inverse_dynamics(q, v, a, theta) for a floating base"
+            )
         return InverseDynamics(self.model, self.theta, trainable=trainable)
 
 
-def _unpack(model, theta) -> tuple[RigidBodyModel, torch.Tensor]:
+def _unpack(model, theta) -> tuple[RigidBodyModel | FloatingBaseModel, torch.Tensor]:
     if isinstance(model, InverseDynamics):
         if theta is None:
             theta = model.theta.detach()
         model = model.model
-    if not isinstance(model, RigidBodyModel):
-        raise TypeError(f"model must be a RigidBodyModel or an InverseDynamics, got {type(model)}")
+    if not isinstance(model, RigidBodyModel | FloatingBaseModel):
+        raise TypeError(
+            "model must be a RigidBodyModel, a FloatingBaseModel or an InverseDynamics, got "
+            f"{type(model)}"
+        )
     if theta is None:
         raise ValueError("theta is required when model is a RigidBodyModel")
     theta = torch.as_tensor(theta).detach().cpu()
@@ -163,7 +172,8 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
     """The identified model as a dictionary of tensors, strings and lists (no custom classes).
 
     Args:
-        model: a `RigidBodyModel`, or an `InverseDynamics` (its theta is the default).
+        model: a `RigidBodyModel` or a `torchjfa.dynamics.FloatingBaseModel`, or an
+            `InverseDynamics` (its theta is the default).
         theta: ``(n_params,)`` parameters.
         **extras: numbers, arrays or strings stored alongside (e.g. ``output_noise=...``).
 
@@ -176,17 +186,20 @@ def identified_to_dict(model, theta=None, **extras) -> dict[str, object]:
         ValueError: on a theta of the wrong shape or with non-finite entries.
     """
     model, theta = _unpack(model, theta)
+    floating = isinstance(model, FloatingBaseModel)
+    joints = model.joints if floating else model
     return {
         "format": _FORMAT,
         "version": _VERSION,
         "library_version": _library_version(),
-        "source_format": model.source_format,
-        "source_path": model.source_path or "",
-        "source_xml": model.source_xml,
-        "gravity": model.gravity,
-        "friction": list(model.friction),
-        "coulomb_velocity": float(model.coulomb_velocity),
-        "transmission": json.dumps(t.to_dict()) if (t := model.transmission) is not None else "",
+        "source_format": joints.source_format,
+        "source_path": joints.source_path or "",
+        "source_xml": joints.source_xml,
+        "gravity": joints.gravity,
+        "friction": list(joints.friction),
+        "coulomb_velocity": float(joints.coulomb_velocity),
+        "transmission": json.dumps(t.to_dict()) if (t := joints.transmission) is not None else "",
+        "floating_base": model.base_name if floating else "",
         "joint_names": list(model.joint_names),
         "parameter_names": list(model.parameter_names),
         "theta": theta.clone(),
@@ -237,6 +250,9 @@ def identified_from_dict(data: dict) -> IdentifiedModel:
         data.get("coulomb_velocity", 0.0),
         data.get("transmission", ""),
     )
+    base = str(data.get("floating_base", ""))
+    if base:  # the stored description is the fixed-base text of the joints (no free joint)
+        model = FloatingBaseModel(model, base_name=base)
     names = tuple(str(n) for n in data["parameter_names"])
     if model.parameter_names != names:
         raise ValueError(

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +27,8 @@ from torchjfa.identification import (
     identify_legged,
     row_moments,
 )
+from torchjfa.identification._legged import mass_index
+from torchjfa.io import read_identified, save_identified
 from torchjfa.sim import simulate_legged
 
 #: every test here prepares at this cut-off (the choice among cut-offs needs longer logs)
@@ -227,3 +230,55 @@ def test_a_humanoid_with_force_sensors_at_its_feet_gives_its_mass_and_centre_of_
     # the ground; its height needs the base to tilt, which a robot standing level does not
     height = float(com_true[2])
     assert float((com - com_true)[:2].norm()) < 0.01 * height
+
+
+def test_the_model_file_judges_other_legged_logs(go2, tmp_path, capsys):
+    out = tmp_path / "result"
+    assert main(["identify", go2["path"], str(go2["forces"]), "--out", str(out), "--quiet",
+                 "--cutoff", str(CUTOFF), "--no-plots"]) == 0  # fmt: skip
+    ident = read_identified(out / "model.npz")
+    assert isinstance(ident.model, FloatingBaseModel) and ident.cutoff_hz == CUTOFF
+    summary = json.loads((out / "report.json").read_text())
+    masses = ident.theta[mass_index(ident.model)]
+    assert float(masses.sum()) == pytest.approx(summary["total_mass"], rel=1e-12)
+    for log, rows in ((go2["forces"], "all"), (go2["flags"], "projected")):
+        capsys.readouterr()
+        rc = main(["evaluate", str(out / "model.npz"), str(log), "--out", str(tmp_path / rows)])
+        assert rc == 0
+        assert "joint rows' RMS" in capsys.readouterr().out
+        found = json.loads((tmp_path / rows / "evaluation.json").read_text())
+        assert found["rows"] == rows and found["cutoff_hz"] == CUTOFF
+        (entry,) = found["logs"]
+        # the same robot and motion it was identified from: better than the description
+        joints = slice(6, None)
+        assert sum(np.square(entry["identified"][joints])) < sum(
+            np.square(entry["description"][joints])
+        )
+    with pytest.raises(ValueError, match="fixed-base robot's module"):
+        ident.inverse_dynamics()
+
+
+@pytest.mark.parametrize("kind", ["urdf", "mjcf"])
+def test_a_floating_base_model_file_round_trips(go2, tmp_path, kind):
+    if kind == "urdf":
+        model = FloatingBaseModel.from_urdf(go2["path"], friction=("viscous", "coulomb"))
+    else:
+        mujoco = pytest.importorskip("mujoco")
+        from torchjfa.dynamics._mjcf import mjcf_from_urdf
+
+        spec = mujoco.MjSpec.from_string(mjcf_from_urdf(Path(go2["path"]).read_text()))
+        spec.worldbody.first_body().add_freejoint(name="root")
+        spec.compile()
+        xml = tmp_path / "go2.xml"
+        xml.write_text(spec.to_xml())
+        model = FloatingBaseModel.from_mjcf(xml, friction=("viscous",))
+    theta = model.nominal_theta * 1.1
+    save_identified(tmp_path / "m.npz", model, theta, cutoff_hz=7.0)
+    back = read_identified(tmp_path / "m.npz")
+    assert isinstance(back.model, FloatingBaseModel)
+    assert back.model.parameter_names == model.parameter_names
+    assert back.model.base_name == model.base_name
+    q = go2["log"].q[:3]
+    v, a = go2["log"].v[:3], go2["log"].a[:3]
+    torch.testing.assert_close(back.model.regressor(q, v, a), model.regressor(q, v, a))
+    torch.testing.assert_close(back.theta, theta)

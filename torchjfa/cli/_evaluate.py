@@ -104,7 +104,13 @@ def cmd_evaluate(args) -> int:
 
 def _evaluate_logs(args) -> int:
     """``torchjfa evaluate MODEL LOG ...``: the model judged on real logs."""
+    from ..dynamics import FloatingBaseModel
     from ..identification import evaluate
+    from ..identification._prepare import identified_model
+
+    ident = identified_model(args.model)
+    if isinstance(ident.model, FloatingBaseModel):
+        return _evaluate_legged(args, ident)
 
     ev = evaluate(
         args.model, args.logs, reading(args), cutoff_hz=args.cutoff, rollouts=args.rollouts
@@ -120,6 +126,20 @@ def _evaluate_logs(args) -> int:
         f"{len(ev.logs)} log(s), prepared at {ev.cutoff_hz:g} Hz, judged against the measured "
         f"torque (unfiltered); written: {paths['json']}"
     )
+    return 0
+
+
+def _evaluate_legged(args, ident) -> int:
+    """``torchjfa evaluate MODEL LOG ...`` of a floating-base model on legged logs."""
+    from ..identification import evaluate_legged
+
+    if args.rollouts:
+        raise UsageError("--rollouts is for fixed-base robots")
+    ev = evaluate_legged(ident, args.logs, reading(args), cutoff_hz=args.cutoff)
+    for line in ev.lines():
+        print(line)
+    paths = ev.write(args.out, **written_as(args, args.model, *args.logs))
+    print(f"{len(ev.logs)} log(s), prepared at {ev.cutoff_hz:g} Hz; written: {paths['json']}")
     return 0
 
 

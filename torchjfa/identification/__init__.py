@@ -48,6 +48,8 @@ from ._identify import Identification as Identification
 from ._identify import identify as identify
 from ._legged import LeggedIdentification as LeggedIdentification
 from ._legged import identify_legged as identify_legged
+from ._legged_eval import LeggedEvaluation as LeggedEvaluation
+from ._legged_eval import evaluate_legged as evaluate_legged
 from ._noise import NoiseChoice as NoiseChoice
 from ._noise import cap_period_noise as cap_period_noise
 from ._noise import choose_noise as choose_noise

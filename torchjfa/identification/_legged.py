@@ -67,7 +67,7 @@ LEGGED_PRIOR_WEIGHT = 1.0
 TOTAL_MASS_WEIGHT = 1e6
 #: each part of the automatic cut-off's split needs this much time, s
 _MIN_PART_SECONDS = 1.0
-_BASE_ROWS = ("base force x", "base force y", "base force z",
+BASE_ROW_LABELS = ("base force x", "base force y", "base force z",
               "base moment x", "base moment y", "base moment z")  # fmt: skip
 
 
@@ -177,7 +177,7 @@ def _span(log: LeggedLog, start: float, stop: float) -> LeggedLog:
     return log.select((log.t >= start) & (log.t <= stop))
 
 
-def _raw_targets(prepared: LeggedLog, raw: LeggedLog) -> LeggedLog:
+def with_raw_targets(prepared: LeggedLog, raw: LeggedLog) -> LeggedLog:
     """The prepared motion with the raw (unfiltered) torques and wrenches: the targets the
     held-out rows are judged against."""
     return LeggedLog(prepared.t, prepared.q, prepared.v, prepared.a, raw.tau, raw.contact,
@@ -193,7 +193,7 @@ def _prepared_parts(raw, cutoff_hz, filter_, split, held, edge):
     if not held:
         return _span(prepared, t0 + edge, t1 - edge), None
     train = _span(prepared, t0 + edge, split)
-    test = _span(_raw_targets(prepared, raw), split + edge, t1 - edge)
+    test = _span(with_raw_targets(prepared, raw), split + edge, t1 - edge)
     return train, test
 
 
@@ -325,7 +325,7 @@ def identify_legged(
         parts = [_prepared_parts(r, cutoff, options.filter, end, not helds, edge)
                  for r, end in zip(raws, ends, strict=True)]  # fmt: skip
         parts_held = [p[1] for p in parts] + [
-            _raw_targets(*_pair(h, cutoff, options.filter, edge)) for h in helds
+            with_raw_targets(*_pair(h, cutoff, options.filter, edge)) for h in helds
         ]
         chunk = options.compute.chunk_size
         train = _moments(model, [p[0] for p in parts], rows, flat, chunk)
@@ -354,7 +354,7 @@ def identify_legged(
                                                         prior_weight=weight)  # fmt: skip
         seconds = time.perf_counter() - started
         bar.update(1)
-    labels = _BASE_ROWS + (() if rows == "base" else model.joint_names)
+    labels = BASE_ROW_LABELS + (() if rows == "base" else model.joint_names)
     held_out = {
         "measured": test.target_rms(),
         "description": test.rms(model.nominal_theta),

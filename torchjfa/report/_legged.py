@@ -114,7 +114,8 @@ def write_legged(
     """Write a floating-base identification's folder as one unit (`torchjfa.io.output_folder`:
     a killed run leaves the earlier folder as it was).
 
-    Files: ``report.md``; ``report.json`` (the settings, the held-out RMS per row, the
+    Files: ``model.npz`` (`torchjfa.io.read_identified`; ``torchjfa evaluate`` judges it on
+    other legged logs); ``report.md``; ``report.json`` (the settings, the held-out RMS per row, the
     masses); ``parameters.csv`` (each parameter: description, estimate, identified);
     ``identified.urdf`` where the robot came from a URDF and every body is consistent;
     ``held_out.png`` and ``masses.png`` with ``plots``.
@@ -136,6 +137,11 @@ def write_legged(
                 w.writerow([name, repr(float(model.nominal_theta[k])),
                             repr(float(ident.theta_hat[k])), repr(float(ident.theta[k]))])  # fmt: skip
         written["parameters"] = "parameters.csv"
+        from ..io import save_identified
+
+        save_identified(stage / "model.npz", model, ident.theta, cutoff_hz=ident.cutoff_hz,
+                        rows=ident.rows)  # fmt: skip
+        written["model"] = "model.npz"
         source = getattr(model.joints, "source_format", None)
         if ident.consistent and source == "urdf":
             try:
