@@ -78,24 +78,61 @@ def test_free_flyer_mass_matrix_equals_mujoco():
     assert base.name == model.base_name
     base.add_freejoint()
     mj = spec.compile()
-    data = mujoco.MjData(mj)
-    dof = np.array([*range(6), *(mj.jnt_dofadr[mj.joint(n).id] for n in model.joint_names)])
-    adr = [mj.jnt_qposadr[mj.joint(n).id] for n in model.joint_names]
     q, _, _ = _state(model.n_dof, 4, seed=2)
     M = model.mass_matrix(q).numpy()
     for b in range(q.shape[0]):
-        data.qpos[:3] = q[b, :3]
-        data.qpos[3:7] = q[b, [6, 3, 4, 5]]  # MuJoCo's quaternion is (w, x, y, z)
-        data.qpos[adr] = q[b, 7:]
-        mujoco.mj_forward(mj, data)
-        full = np.zeros((mj.nv, mj.nv))
-        mujoco.mj_fullM(mj, data, full)
-        full = full[np.ix_(dof, dof)]
-        # MuJoCo's free joint takes the linear velocity in world axes, ours in base axes
-        T = np.eye(6 + model.n_dof)
-        T[:3, :3] = data.xmat[base.id].reshape(3, 3)
-        expected = T.T @ full @ T
+        expected = _mujoco_mass_matrix(mujoco, mj, model, q[b], base.id)
         np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def _mujoco_mass_matrix(mujoco, mj, model, q, base_id: int) -> np.ndarray:
+    """MuJoCo's mass matrix of a free-joint model at our state ``q``, in our velocity order
+    and convention."""
+    data = mujoco.MjData(mj)
+    dof = np.array([*range(6), *(mj.jnt_dofadr[mj.joint(n).id] for n in model.joint_names)])
+    adr = [mj.jnt_qposadr[mj.joint(n).id] for n in model.joint_names]
+    data.qpos[:3] = q[:3]
+    data.qpos[3:7] = q[[6, 3, 4, 5]]  # MuJoCo's quaternion is (w, x, y, z)
+    data.qpos[adr] = q[7:]
+    mujoco.mj_forward(mj, data)
+    full = np.zeros((mj.nv, mj.nv))
+    mujoco.mj_fullM(mj, data, full)
+    full = full[np.ix_(dof, dof)]
+    # MuJoCo's free joint takes the linear velocity in world axes, ours in base axes
+    T = np.eye(6 + model.n_dof)
+    T[:3, :3] = data.xmat[base_id].reshape(3, 3)
+    return T.T @ full @ T
+
+
+def test_the_written_mjcf_has_a_free_joint_and_mujoco_gives_its_mass_matrix(tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    model = FloatingBaseModel.from_urdf(erd_path(LEGGED["go2"]), friction=("viscous",))
+    # every body's 10 parameters scaled by its own positive factor: still consistent
+    rng = np.random.default_rng(4)
+    inertial, terms = model.joints.layout.split(model.nominal_theta[10:])
+    scale = torch.as_tensor(rng.uniform(0.7, 1.3, size=(model.n_dof, 1)))
+    theta = torch.cat([model.nominal_theta[:10] * 1.2,
+                       model.joints.layout.join(inertial * scale, terms + 0.25)])  # fmt: skip
+    model.write_mjcf(theta, tmp_path / "go2.xml")
+    mj = mujoco.MjModel.from_xml_path(str(tmp_path / "go2.xml"))
+    assert mj.nq == 7 + model.n_dof and mj.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+    base_id = mj.body(model.base_name).id
+    assert mj.body_mass.sum() == pytest.approx(float(theta[mass_columns(model)].sum()), rel=1e-12)
+    np.testing.assert_allclose(mj.dof_damping[6:], 0.25, rtol=1e-12)
+    q, _, _ = _state(model.n_dof, 2, seed=5)
+    M = model.mass_matrix(q, theta).numpy()
+    for b in range(q.shape[0]):
+        expected = _mujoco_mass_matrix(mujoco, mj, model, q[b], base_id)
+        # MuJoCo turns each full inertia into principal axes and back: round-off of 1e-15
+        np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    back = FloatingBaseModel.from_mjcf(tmp_path / "go2.xml", friction=("viscous",))
+    torch.testing.assert_close(back.nominal_theta[:10], theta[:10], rtol=0, atol=1e-12)
+
+
+def mass_columns(model) -> list[int]:
+    """theta's mass entries: the base's, then each joint body's."""
+    inertial, _ = model.joints.layout.split(torch.arange(model.joints.n_params))
+    return [0, *(10 + int(i) for i in inertial[:, 0])]
 
 
 def test_the_joint_rows_of_a_base_at_rest_are_the_fixed_base_regressor():
@@ -240,20 +277,9 @@ def test_an_mjcf_free_joint_gives_the_urdfs_floating_model_and_mujocos_mass_matr
     torch.testing.assert_close(model.regressor(q, v, a), Y_urdf, rtol=1e-12, atol=1e-12)
 
     mj = mujoco.MjModel.from_xml_string(_go2_mjcf(mujoco, path, scenery=False))
-    data = mujoco.MjData(mj)
-    dof = np.array([*range(6), *(mj.jnt_dofadr[mj.joint(n).id] for n in model.joint_names)])
-    adr = [mj.jnt_qposadr[mj.joint(n).id] for n in model.joint_names]
     M = model.mass_matrix(q).numpy()
     for b in range(q.shape[0]):
-        data.qpos[:3] = q[b, :3]
-        data.qpos[3:7] = q[b, [6, 3, 4, 5]]
-        data.qpos[adr] = q[b, 7:]
-        mujoco.mj_forward(mj, data)
-        full = np.zeros((mj.nv, mj.nv))
-        mujoco.mj_fullM(mj, data, full)
-        T = np.eye(6 + model.n_dof)
-        T[:3, :3] = data.xmat[mj.body("base").id].reshape(3, 3)
-        expected = T.T @ full[np.ix_(dof, dof)] @ T
+        expected = _mujoco_mass_matrix(mujoco, mj, model, q[b], mj.body("base").id)
         np.testing.assert_allclose(M[b], expected, rtol=0, atol=1e-12 * np.abs(expected).max())
 
 

@@ -113,6 +113,10 @@ def test_the_command_writes_a_report_and_a_urdf_that_pinocchio_reads(go2, tmp_pa
     assert summary["rows"] == "all" and summary["consistent"]
     text = (out / "report.md").read_text()
     assert "## Held-out prediction" in text and "base force z" in text
+    mujoco = pytest.importorskip("mujoco")
+    mj = mujoco.MjModel.from_xml_path(str(out / "identified.xml"))
+    assert mj.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+    assert mj.body_mass.sum() == pytest.approx(summary["total_mass"], rel=1e-12)
     pm = pin.buildModelFromUrdf(str(out / "identified.urdf"), pin.JointModelFreeFlyer())
     total = sum(float(inertia.mass) for inertia in pm.inertias)
     assert total == pytest.approx(summary["total_mass"], rel=1e-12)

@@ -31,7 +31,7 @@ from ._model import RigidBodyModel
 from ._parameters import INERTIAL_NAMES
 from ._rnea import floating_regressor_into, skew
 from ._tree import read_description
-from ._writeback import write_floating_urdf
+from ._writeback import write_floating_mjcf, write_floating_urdf
 
 __all__ = ["FloatingBaseModel", "quaternion_matrix"]
 
@@ -291,6 +291,17 @@ class FloatingBaseModel:
                 is not physically consistent.
         """
         write_floating_urdf(self, theta, path)
+
+    def write_mjcf(self, theta, path: str | os.PathLike) -> None:
+        """Write the description as MJCF with theta's inertials and a ``<freejoint>`` on the
+        base body (a URDF through MuJoCo's URDF importer), which MuJoCo simulates and
+        `from_mjcf` reads back; as `torchjfa.dynamics.RigidBodyModel.write_mjcf`.
+
+        Raises:
+            ValueError: on a theta of the wrong shape, a body that is not physically
+                consistent, or a description MuJoCo cannot compile.
+        """
+        write_floating_mjcf(self, theta, path)
 
     # ------------------------------------------------------------------ contacts
     def frame_jacobian(self, q, frames: str | Sequence[str]) -> torch.Tensor:

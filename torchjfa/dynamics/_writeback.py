@@ -140,12 +140,10 @@ def _inertial_element(link: ET.Element, com, mass, inertia) -> None:
     ET.SubElement(el, "inertia", **values)
 
 
-def write_floating_urdf(model, theta: torch.Tensor, path) -> None:
-    """`write_urdf` of a `FloatingBaseModel`: the joints' bodies as for a fixed base, then the
-    base's inertial on the root link (the links fixed to it lumped into it)."""
+def _base_inertial(model, theta: torch.Tensor):
+    """``(mass, com, inertia about the com)`` of a floating base's 10 parameters, checked."""
     from ._parameters import inertial_from_vector
 
-    theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
     mass, com, inertia = inertial_from_vector(theta[:10])
     eig = np.linalg.eigvalsh(inertia.numpy())
     if not float(mass) > 0 or eig.min() < -1e-12 * max(1.0, abs(eig).max()):
@@ -153,19 +151,62 @@ def write_floating_urdf(model, theta: torch.Tensor, path) -> None:
             f"the base {model.base_name!r} has mass {float(mass)} and principal inertias "
             f"{eig.tolist()}; project theta onto physically consistent parameters first"
         )
+    return float(mass), com.tolist(), inertia.numpy()
+
+
+def _base_lumped(model) -> list[str]:
+    """The frames fixed to a floating base, itself excluded (their inertia is the base's)."""
+    tree = model.joints._tree
+    return [name for name, owner in zip(tree.frame_names, tree.frame_owner, strict=True)
+            if owner < 0 and name != model.base_name]  # fmt: skip
+
+
+def write_floating_urdf(model, theta: torch.Tensor, path) -> None:
+    """`write_urdf` of a `FloatingBaseModel`: the joints' bodies as for a fixed base, then the
+    base's inertial on the root link (the links fixed to it lumped into it)."""
+    theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
+    mass, com, inertia = _base_inertial(model, theta)
     write_urdf(model.joints, theta[10:], path)
     parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
     root = ET.parse(path, parser=parser).getroot()
     links = {link.get("name"): link for link in root.findall("link")}
-    tree = model.joints._tree
-    for name, owner in zip(tree.frame_names, tree.frame_owner, strict=True):
-        if owner < 0 and name in links:
-            for old in links[name].findall("inertial"):
-                links[name].remove(old)
-    _inertial_element(links[model.base_name], com.tolist(), float(mass), inertia.numpy())
+    for name in _base_lumped(model):
+        for old in links[name].findall("inertial") if name in links else ():
+            links[name].remove(old)
+    _inertial_element(links[model.base_name], com, mass, inertia)
     ET.indent(root, space="  ")
     with open(path, "w", encoding="utf-8") as fh:
         fh.write('<?xml version="1.0"?>\n')
+        fh.write(ET.tostring(root, encoding="unicode"))
+        fh.write("\n")
+
+
+def write_floating_mjcf(model, theta: torch.Tensor, path) -> None:
+    """`write_mjcf` of a `FloatingBaseModel`: the joints' bodies as for a fixed base, then the
+    base body's inertial (bodies fixed to it massless) and a ``<freejoint>`` on it."""
+    theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
+    mass, com, inertia = _base_inertial(model, theta)
+    write_mjcf(model.joints, theta[10:], path)
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    root = ET.parse(path, parser=parser).getroot()
+    bodies = {el.get("name"): el for el in root.iter("body")}
+    if model.base_name not in bodies:
+        raise ValueError(f"the base body {model.base_name!r} is not in the MJCF written")
+    base = bodies[model.base_name]
+    for name in _base_lumped(model):
+        if name in bodies:
+            for old in bodies[name].findall("inertial"):
+                bodies[name].remove(old)
+            bodies[name].insert(0, ET.Element("inertial", pos="0 0 0", mass="0",
+                                              diaginertia="0 0 0"))  # fmt: skip
+    for old in base.findall("inertial"):
+        base.remove(old)
+    six = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2],
+           inertia[1, 2])  # fmt: skip
+    base.insert(0, ET.Element("inertial", pos=" ".join(_fmt(v) for v in com), mass=_fmt(mass),
+                              fullinertia=" ".join(_fmt(v) for v in six)))  # fmt: skip
+    base.insert(0, ET.Element("freejoint", name=f"{model.base_name}_free"))
+    with open(path, "w", encoding="utf-8") as fh:
         fh.write(ET.tostring(root, encoding="unicode"))
         fh.write("\n")
 

@@ -102,6 +102,29 @@ def _masses_figure(ident, path):
     fig.savefig(path, dpi=110)
 
 
+def _write_descriptions(ident, stage: Path) -> dict[str, str]:
+    """``identified.xml`` (MJCF with a ``<freejoint>``) and, for a URDF robot,
+    ``identified.urdf``, where every body is consistent; records in
+    ``settings["description_file"]`` what was written or why not."""
+    if not ident.consistent:
+        ident.settings["description_file"] = "not written: some bodies are not consistent"
+        return {}
+    files = {"mjcf": "identified.xml"}
+    if ident.model.joints.source_format == "urdf":
+        files["description"] = "identified.urdf"
+    written, failed = {}, []
+    for key, name in files.items():
+        write = ident.model.write_urdf if name.endswith(".urdf") else ident.model.write_mjcf
+        try:
+            write(ident.theta, stage / name)
+            written[key] = name
+        except (ValueError, OSError) as exc:
+            (stage / name).unlink(missing_ok=True)
+            failed.append(f"{name} not written: {exc}")
+    ident.settings["description_file"] = "; ".join([f"`{n}`" for n in written.values()] + failed)
+    return written
+
+
 def write_legged(
     ident,
     out_dir: str | os.PathLike,
@@ -117,7 +140,8 @@ def write_legged(
     Files: ``model.npz`` (`torchjfa.io.read_identified`; ``torchjfa evaluate`` judges it on
     other legged logs); ``report.md``; ``report.json`` (the settings, the held-out RMS per row, the
     masses); ``parameters.csv`` (each parameter: description, estimate, identified);
-    ``identified.urdf`` where the robot came from a URDF and every body is consistent;
+    where every body is consistent, ``identified.xml`` (MJCF with a ``<freejoint>``) and, for
+    a robot read from a URDF, ``identified.urdf``;
     ``held_out.png`` and ``masses.png`` with ``plots``.
 
     Returns:
@@ -142,18 +166,7 @@ def write_legged(
         save_identified(stage / "model.npz", model, ident.theta, cutoff_hz=ident.cutoff_hz,
                         rows=ident.rows)  # fmt: skip
         written["model"] = "model.npz"
-        source = getattr(model.joints, "source_format", None)
-        if ident.consistent and source == "urdf":
-            try:
-                model.write_urdf(ident.theta, stage / "identified.urdf")
-                written["description"] = "identified.urdf"
-                ident.settings["description_file"] = "`identified.urdf`"
-            except (ValueError, OSError) as exc:
-                ident.settings["description_file"] = f"not written: {exc}"
-        else:
-            why = ("not written: some bodies are not consistent" if not ident.consistent
-                   else "not written: the description is not a URDF")  # fmt: skip
-            ident.settings["description_file"] = why
+        written.update(_write_descriptions(ident, stage))
         images = {}
         if plots:
             _rows_figure(ident, stage / "held_out.png")
