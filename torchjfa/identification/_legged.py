@@ -20,7 +20,8 @@ The stages, each chosen from what the logs hold:
 7. the estimator (`Options.estimator`) on the weighted rows, with a constraint row for
    `Options.total_mass`;
 8. the projection onto physically consistent parameters over every body, the base's
-   included (`consistent_floating`), pulled towards the description;
+   included (`consistent_floating`), pulled towards the description with a weight chosen
+   by cross-validation over five blocks of the training data (``description_prior="auto"``);
 9. the held-out rows' RMS for the description, the estimate and the identified model.
 """
 
@@ -47,7 +48,7 @@ from ..data import (
 from ..dynamics import FloatingBaseModel
 from ..physical import ConsistencyReport
 from ..stats import Moments
-from ._contacts import RowMoments, consistent_floating, row_moments
+from ._contacts import RowMoments, _Padded, consistent_floating, row_moments
 from ._fit import make_estimator
 from ._legged_read import (
     check_legged_options,
@@ -58,10 +59,12 @@ from ._legged_read import (
     read_legged,
 )
 from ._options import IdentificationError, IdentificationWarning, Options
+from ._prior import PRIOR_BLOCKS, choose_prior_weight, pick_prior_weight
 
 __all__ = ["LeggedIdentification", "identify_legged", "is_legged_log"]
 
-#: the description prior's weight of ``description_prior="auto"`` for a floating base
+#: the description prior's weight where ``description_prior="auto"`` has too little data to
+#: choose one
 LEGGED_PRIOR_WEIGHT = 1.0
 #: the constraint row of ``total_mass``: its weight over the largest diagonal of the data's
 TOTAL_MASS_WEIGHT = 1e6
@@ -284,7 +287,8 @@ def identify_legged(
             or `torchjfa.data.LeggedLog` s).
         options: `Options`; the reading and preparation options of joint logs that a legged
             log has no use for (column maps, drive gains, periods, ...) must stay at their
-            defaults. ``description_prior="auto"`` is the weight `LEGGED_PRIOR_WEIGHT`.
+            defaults. ``description_prior="auto"`` chooses the prior's weight by
+            cross-validation over blocks of the training data, as for a fixed base.
         validation_log: logs to hold out instead of the end of each log.
         settings: more entries for the report's record (the command line).
 
@@ -328,7 +332,8 @@ def identify_legged(
             with_raw_targets(*_pair(h, cutoff, options.filter, edge)) for h in helds
         ]
         chunk = options.compute.chunk_size
-        train = _moments(model, [p[0] for p in parts], rows, flat, chunk)
+        blocks = _blocks(model, [p[0] for p in parts], rows, flat, chunk)
+        train = sum(blocks[1:], blocks[0]) if blocks else None
         test = _moments(model, parts_held, rows, flat, chunk)
         if train is None or test is None:
             raise IdentificationError(
@@ -339,17 +344,14 @@ def identify_legged(
         bar.set_description_str(f"identify: {stages[3]}")
         started = time.perf_counter()
         weights = _residual_weights(train, options)
-        moments = train.combined(weights)
-        if options.total_mass is not None:
-            moments = _with_total_mass(model, moments, float(options.total_mass))
+        moments = _weighted(model, train, weights, options)
         estimator = make_estimator(options).fit_moments(moments)
         theta_hat = estimator.coef_.detach().to(torch.float64).cpu()
         bar.update(1)
         bar.set_description_str(f"identify: {stages[4]}")
         theta, consistency = theta_hat, None
+        weight, prior_how = _prior_weight(model, blocks, weights, estimator, options)
         if options.project:
-            w = options.description_prior
-            weight = LEGGED_PRIOR_WEIGHT if w == "auto" else (None if not w else float(w))
             theta, _, consistency = consistent_floating(model, moments, theta_hat,
                                                         prior_weight=weight)  # fmt: skip
         seconds = time.perf_counter() - started
@@ -366,7 +368,7 @@ def identify_legged(
             "with contact flags only, the total mass is weakly determined: give it with "
             "--total-mass where it is known (a scale), or log the contact forces"
         )
-    sources = (raws, helds, estimator, cutoff, how)
+    sources = (raws, helds, estimator, cutoff, how, prior_how)
     record = {**_record(robot, model, rows, options, *sources), **dict(settings or {})}
     out = LeggedIdentification(
         model, rows, labels, theta_hat, theta, consistency, held_out, weights, cutoff, how,
@@ -377,7 +379,7 @@ def identify_legged(
     return out
 
 
-def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how) -> dict:
+def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, prior_how) -> dict:
     """The report's record of how the identification ran."""
     return {
         "robot": str(robot) if isinstance(robot, str | os.PathLike) else model.base_name,
@@ -394,13 +396,7 @@ def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how) ->
         "joint_terms": ", ".join(model.joints.friction) or "none",
         "estimator": type(estimator).__name__,
         "weighting": options.weighting,
-        "description_prior": (
-            "none (no projection)"
-            if not options.project
-            else f"{LEGGED_PRIOR_WEIGHT:g} (auto)"
-            if options.description_prior == "auto"
-            else str(options.description_prior)
-        ),
+        "description_prior": prior_how,
         "total_mass": "none" if options.total_mass is None else f"{options.total_mass:g} kg",
     }
 
@@ -411,6 +407,50 @@ def _pair(raw, cutoff, filter_, edge) -> tuple[LeggedLog, LeggedLog]:
     t0, t1 = float(raw.t[0]), float(raw.t[-1])
     keep = (raw.t >= t0 + edge) & (raw.t <= t1 - edge)
     return prepare_legged(raw, cutoff_hz=cutoff, method=filter_).select(keep), raw.select(keep)
+
+
+def _blocks(model, parts, rows, flat, chunk) -> list[RowMoments]:
+    """The training rows in `PRIOR_BLOCKS` blocks: each part cut into that many consecutive
+    pieces, the k-th pieces of every part summed into block k (the description prior's
+    cross-validation folds)."""
+    blocks: list[RowMoments | None] = [None] * PRIOR_BLOCKS
+    for part in parts:
+        edges = np.linspace(0, len(part.t), PRIOR_BLOCKS + 1).astype(int)
+        for k in range(PRIOR_BLOCKS):
+            piece = part.select(np.arange(edges[k], edges[k + 1]))
+            if len(piece.t):
+                m = row_moments(model, piece, rows=rows, flat=flat, chunk_size=chunk)
+                blocks[k] = m if blocks[k] is None else blocks[k] + m
+    return [b for b in blocks if b is not None]
+
+
+def _weighted(model, rows: RowMoments, weights, options: Options) -> Moments:
+    """The rows' `Moments` in the fit's weights, with the total mass's constraint row."""
+    moments = rows.combined(weights)
+    if options.total_mass is not None:
+        moments = _with_total_mass(model, moments, float(options.total_mass))
+    return moments
+
+
+def _prior_weight(model, blocks, weights, estimator, options: Options):
+    """``(weight or None, how)`` of the description prior: given, or with ``"auto"`` chosen
+    by cross-validation over the training blocks as for a fixed base
+    (`torchjfa.identification.choose_prior_weight` on the padded layout)."""
+    w = options.description_prior
+    if not options.project:
+        return None, "none (no projection)"
+    if w != "auto":
+        return (float(w) if w else None), (str(w) if w else "none")
+    if len(blocks) < 2:
+        return LEGGED_PRIOR_WEIGHT, f"{LEGGED_PRIOR_WEIGHT:g} (too little data to choose)"
+    padded = _Padded(model)
+    folds = [padded.pad_moments(_weighted(model, b, weights, options)) for b in blocks]
+    choice = choose_prior_weight(estimator, folds, padded, None, options.parametrization, {})
+    weight = pick_prior_weight(choice)
+    return weight, (
+        f"{weight:g} (auto: of {', '.join(f'{c:g}' for c in choice)}, by cross-validation "
+        f"over {len(folds)} blocks of the training data)"
+    )
 
 
 def _with_total_mass(model, moments, mass: float):
