@@ -253,3 +253,32 @@ def test_write_mjcf_writes_the_joint_terms_and_simulates_them(tmp_path):
     bad[rows["ia"][0]] = -0.1
     with pytest.raises(ValueError, match="negative armature"):
         model.write_mjcf(bad, tmp_path / "bad.xml")
+
+
+def test_the_description_is_judged_with_the_damping_and_friction_it_states():
+    import re
+
+    text = Path(torchjfa.robots.path("panda_arm")).read_text()
+    text = re.sub(r"<dynamics[^>]*/>", '<dynamics damping="0.7" friction="0.3"/>', text)
+    model = RigidBodyModel.from_urdf(text, friction=("viscous", "coulomb", "offset"))
+    inertial, terms = model.layout.split(model.description_theta)
+    stated = text.count('<dynamics damping="0.7" friction="0.3"/>')
+    assert stated >= model.n_dof  # the description states them for every joint
+    torch.testing.assert_close(terms[:, 0], torch.full((model.n_dof,), 0.7, dtype=torch.float64))
+    torch.testing.assert_close(terms[:, 1], torch.full((model.n_dof,), 0.3, dtype=torch.float64))
+    assert bool((terms[:, 2] == 0).all())  # no offset in a description
+    torch.testing.assert_close(inertial, model.layout.split(model.nominal_theta)[0])
+    assert bool((model.layout.split(model.nominal_theta)[1] == 0).all())
+
+
+def test_an_mjcfs_default_classes_give_the_stated_joint_terms():
+    xml = """<mujoco><default><joint damping="0.4" frictionloss="0.1" armature="0.02"/>
+      <default class="stiff"><joint damping="1.5"/></default></default>
+      <worldbody><body name="a"><joint name="j1" axis="0 0 1"/>
+        <geom size="0.1" mass="1"/>
+        <body name="b" pos="0 0 0.3"><joint name="j2" class="stiff" axis="0 1 0"/>
+          <geom size="0.1" mass="1"/></body></body></worldbody></mujoco>"""
+    model = RigidBodyModel.from_mjcf(xml, friction=("viscous", "coulomb", "armature"))
+    _, terms = model.layout.split(model.description_theta)
+    expected = torch.tensor([[0.4, 0.1, 0.02], [1.5, 0.1, 0.02]], dtype=torch.float64)
+    torch.testing.assert_close(terms, expected)

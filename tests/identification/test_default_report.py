@@ -188,6 +188,8 @@ def test_the_default_report_reads_in_a_minute(folder, report):
     assert lines[:3] == ["# Identification report: head", "", "## Verdict"]
     assert len(lines) < 80, len(lines)
     assert lines[4].startswith("- **Better than the description by ")
+    # the head's MJCF states damping and dry friction: the description is judged with them
+    assert "against the description's (with its own damping and friction) " in lines[4]
     assert any(line.startswith("- **Next step**: ") for line in lines[4:16])
     joints = report["joint_names"]
     assert len(joints) == 7

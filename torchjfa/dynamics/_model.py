@@ -227,6 +227,25 @@ class RigidBodyModel(FrameKinematics):
         inertial = torch.as_tensor(self._tree.inertial, dtype=torch.float64)
         return self.layout.join(inertial)
 
+    @property
+    def description_theta(self) -> torch.Tensor:
+        """``(n_params,)`` float64: the description with everything it states: its inertials
+        and, in the model's joint terms, its damping (``viscous``), dry friction
+        (``coulomb``) and armature (``armature``): a URDF's ``<dynamics damping friction>``,
+        an MJCF joint's ``damping``, ``frictionloss`` and ``armature``. With a transmission
+        the joint terms act per motor and stay 0."""
+        from ._described import TERMS, described_terms
+
+        inertial = torch.as_tensor(self._tree.inertial, dtype=torch.float64)
+        if self.transmission is not None or not self.friction:
+            return self.layout.join(inertial)
+        stated = described_terms(self)
+        terms = torch.zeros(self.n_dof, len(self.friction), dtype=torch.float64)
+        for k, kind in enumerate(self.friction):
+            if kind in TERMS:
+                terms[:, k] = torch.as_tensor(stated[TERMS[kind]], dtype=torch.float64)
+        return self.layout.join(inertial, terms)
+
     def __repr__(self) -> str:
         where = self.source_path or "<string>"
         smooth = f", coulomb_velocity={self.coulomb_velocity:g}" if self.coulomb_velocity else ""

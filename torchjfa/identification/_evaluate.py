@@ -182,8 +182,8 @@ def evaluate(
     if not 0 < cutoff < float("inf"):
         raise IdentificationError(f"the cut-off must be a positive number of Hz, got {cutoff}")
     params = {"identified": theta}
-    if bool((model.nominal_theta != 0).any()):
-        params["description"] = model.nominal_theta.to(theta)
+    if bool((model.nominal_theta != 0).any()):  # with the damping and friction it states
+        params["description"] = model.description_theta.to(theta)
     per_log = {}
     for source in several(logs):
         raw, data = read_prepared(source, model, options, cutoff)  # its errors name the log

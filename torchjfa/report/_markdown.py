@@ -125,7 +125,8 @@ def _accuracy(v: Verdict) -> str:
     if r is None:
         text = f"**No description to compare with**: held-out {rms}"
     else:
-        desc = f"against the description's {g3(v.rms_description)} N m"
+        stated = f" (with its own {v.description_terms})" if v.description_terms else ""
+        desc = f"against the description's{stated} {g3(v.rms_description)} N m"
         text = {
             "better": f"**Better than the description by {_times(r)}** on held-out data: {rms} "
             f"{desc}",

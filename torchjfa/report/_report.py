@@ -491,7 +491,7 @@ def make_report(
         "identified": _fit(result, validation, result.theta),
         "unconstrained": _fit(result, validation, result.theta_hat),
     }
-    nominal = model.nominal_theta
+    nominal = model.description_theta  # its inertials, damping and friction as it states them
     if bool((nominal != 0).any()):
         fits["description"] = _fit(result, validation, nominal)
     noise: dict[str, object] = {}

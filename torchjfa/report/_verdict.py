@@ -68,6 +68,8 @@ class Verdict:
             when the data excite nothing.
         n_params: the number of parameters.
         prior_weight: the description prior's weight, or None.
+        description_terms: the joint terms the description states and its prediction
+            includes (``"damping and friction"``, ...), or ``""`` for its inertials alone.
         warnings: every warning, most urgent first.
         next_steps: what to do next, most urgent first (`next_steps`).
     """
@@ -85,6 +87,7 @@ class Verdict:
     prior_weight: float | None
     warnings: tuple[str, ...]
     next_steps: tuple[str, ...]
+    description_terms: str = ""
 
     @property
     def ratio(self) -> float | None:
@@ -170,8 +173,19 @@ def make_verdict(report, model_path: str = "model.npz") -> Verdict:
         prior_weight=report.result.prior_weight,
         warnings=tuple(warnings),
         next_steps=(),
+        description_terms=stated_terms(report.model) if desc is not None else "",
     )
     return replace(v, next_steps=tuple(next_steps(report, v, model_path)))
+
+
+def stated_terms(model) -> str:
+    """The joint terms the description states that its prediction includes, in words
+    (``"damping and friction"``), or ``""``."""
+    _, terms = model.layout.split(model.description_theta)
+    names = {"viscous": "damping", "coulomb": "friction", "armature": "armature"}
+    found = [names[k] for j, k in enumerate(model.friction)
+             if k in names and bool((terms[:, j] != 0).any())]  # fmt: skip
+    return " and ".join([", ".join(found[:-1]), found[-1]] if len(found) > 2 else found)
 
 
 def ranked_warnings(warnings) -> list[str]:
