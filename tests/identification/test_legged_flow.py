@@ -167,6 +167,10 @@ def test_a_log_whose_joints_or_frames_do_not_match_names_them(go2, tmp_path):
         identify_legged(go2["path"], path, Options(cutoff=CUTOFF))
     text = str(info.value)
     assert "FL_hip_joint_x" in text and "['FL_hip_joint']" in text and "FL_toe" in text
+    uneven = replace(log, t=log.t + np.where(np.arange(len(log.t)) >= 300, 0.003, 0.0))
+    uneven.save(path)
+    with pytest.raises(LogError, match="fixed rate"):
+        identify_legged(go2["path"], path, Options(cutoff=CUTOFF))
 
 
 def test_a_short_log_warns_that_the_cut_off_was_not_chosen(go2):
@@ -285,3 +289,10 @@ def test_a_floating_base_model_file_round_trips(go2, tmp_path, kind):
     v, a = go2["log"].v[:3], go2["log"].a[:3]
     torch.testing.assert_close(back.model.regressor(q, v, a), model.regressor(q, v, a))
     torch.testing.assert_close(back.theta, theta)
+
+
+def test_a_log_too_short_for_the_filter_is_refused_naming_it(go2, tmp_path):
+    path = tmp_path / "tiny.csv"
+    go2["log"].select(np.arange(6)).save(path)
+    with pytest.raises(LogError, match=r"tiny\.csv: .*filter"):
+        identify_legged(go2["path"], path, Options(cutoff=CUTOFF))

@@ -41,6 +41,7 @@ from .._util import progress_bar
 from ..data import (
     DEFAULT_CUTOFF_HZ,
     LeggedLog,
+    LogError,
     cutoff_grid,
     edge_seconds,
     prepare_legged,
@@ -176,6 +177,15 @@ def mass_index(model: FloatingBaseModel) -> torch.Tensor:
     return torch.cat([torch.tensor([0]), 10 + inertial[:, 0].long()])
 
 
+def prepared_log(raw: LeggedLog, cutoff_hz: float, method: str = "butterworth") -> LeggedLog:
+    """`torchjfa.data.prepare_legged`, its refusals (a log too short for the filter) as a
+    `torchjfa.data.LogError` naming the log."""
+    try:
+        return prepare_legged(raw, cutoff_hz=cutoff_hz, method=method)
+    except ValueError as exc:
+        raise LogError(f"{raw.info.get('source', 'the log')}: {exc}") from None
+
+
 def _span(log: LeggedLog, start: float, stop: float) -> LeggedLog:
     return log.select((log.t >= start) & (log.t <= stop))
 
@@ -191,7 +201,7 @@ def _prepared_parts(raw, cutoff_hz, filter_, split, held, edge):
     """``(train, test)`` of one raw log prepared at ``cutoff_hz``: the training part
     ``[t0 + edge, t_split]`` and, where ``split`` is given, the held-out part
     ``[t_split + edge, t1 - edge]`` with the raw torques and wrenches."""
-    prepared = prepare_legged(raw, cutoff_hz=cutoff_hz, method=filter_)
+    prepared = prepared_log(raw, cutoff_hz, filter_)
     t0, t1 = float(raw.t[0]), float(raw.t[-1])
     if not held:
         return _span(prepared, t0 + edge, t1 - edge), None
@@ -406,7 +416,7 @@ def _pair(raw, cutoff, filter_, edge) -> tuple[LeggedLog, LeggedLog]:
     samples at the same times."""
     t0, t1 = float(raw.t[0]), float(raw.t[-1])
     keep = (raw.t >= t0 + edge) & (raw.t <= t1 - edge)
-    return prepare_legged(raw, cutoff_hz=cutoff, method=filter_).select(keep), raw.select(keep)
+    return prepared_log(raw, cutoff, filter_).select(keep), raw.select(keep)
 
 
 def _blocks(model, parts, rows, flat, chunk) -> list[RowMoments]:

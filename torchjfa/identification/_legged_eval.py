@@ -11,10 +11,10 @@ from pathlib import Path
 import torch
 
 from .._util import output_folder
-from ..data import edge_seconds, prepare_legged
+from ..data import edge_seconds
 from ..dynamics import FloatingBaseModel
 from ._contacts import row_moments
-from ._legged import BASE_ROW_LABELS, ROW_TEXT, with_raw_targets
+from ._legged import BASE_ROW_LABELS, ROW_TEXT, prepared_log, with_raw_targets
 from ._legged_read import check_legged_options, choose_rows, read_legged
 from ._options import IdentificationError, Options
 
@@ -110,7 +110,7 @@ def evaluate_legged(identified, logs, options: Options | None = None, *, cutoff_
         keep = (raw.t >= raw.t[0] + edge) & (raw.t <= raw.t[-1] - edge)
         if not keep.any():
             raise IdentificationError(f"{source}: shorter than the filter's reach ({edge:.2g} s)")
-        prepared = prepare_legged(raw, cutoff_hz=cutoff).select(keep)
+        prepared = prepared_log(raw, cutoff).select(keep)
         judged = with_raw_targets(prepared, raw.select(keep))
         m = row_moments(model, judged, rows=rows, flat=flat)
         result.logs.append({

@@ -10,8 +10,9 @@ from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from ..data import BASE_POSE, LeggedLog, LogError, read_legged_log
+from ..data import BASE_POSE, LeggedLog, LogError, is_uniform, read_legged_log
 from ..dynamics import FloatingBaseModel
 from ._options import DEFAULT_JOINT_TERMS, IdentificationError, Options
 
@@ -68,7 +69,11 @@ def load_floating(robot, options: Options) -> FloatingBaseModel:
     """The floating-base model of a URDF or MJCF file, with the options' joint terms."""
     if isinstance(robot, FloatingBaseModel):
         return robot
+    from .. import robots
+
     path = os.fspath(robot)
+    if path in robots.available():
+        path = robots.path(path)
     if not os.path.isfile(path):
         raise IdentificationError(
             f"no robot file {path!r}: a floating-base robot is given by its URDF or MJCF file"
@@ -122,6 +127,12 @@ def read_legged(source, model: FloatingBaseModel, options: Options) -> LeggedLog
     unknown = sorted({f for f in (*log.contact, *log.wrench) if f not in frames})
     if unknown:
         problems.append(f"contact frames {unknown} that the description does not have")
+    dt = np.diff(log.t)
+    if dt.size and not is_uniform(torch.as_tensor(log.t)):
+        problems.append(
+            f"time steps from {dt.min():.4g} to {dt.max():.4g} s: a legged log must be sampled "
+            "at a fixed rate (resample it first)"
+        )
     if not log.contact and not log.wrench:
         problems.append("no contact columns (contact_<frame> flags or f_<frame>_x/_y/_z forces)")
     if problems:
