@@ -8,8 +8,11 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 
 import numpy as np
+import torch
 
-__all__ = ["described_terms"]
+from ._mjcf import mjcf_joint_terms
+
+__all__ = ["described_terms", "description_theta"]
 
 #: a model's joint term -> the description's quantity (per joint; N m s/rad, N m, kg m^2)
 TERMS = {"viscous": "damping", "coulomb": "friction", "armature": "armature"}
@@ -32,21 +35,6 @@ def _urdf(text: str, joints) -> dict[str, np.ndarray]:
     return out
 
 
-def _mjcf(text: str, path: str | None, joints) -> dict[str, np.ndarray]:
-    import mujoco
-
-    try:
-        mj = mujoco.MjModel.from_xml_path(path) if path else mujoco.MjModel.from_xml_string(text)
-    except ValueError:  # the joints' text alone (a floating base's): compile it
-        mj = mujoco.MjModel.from_xml_string(text)
-    dof = [int(mj.jnt_dofadr[mj.joint(name).id]) for name in joints]
-    return {
-        "damping": np.array(mj.dof_damping[dof], dtype=np.float64),
-        "friction": np.array(mj.dof_frictionloss[dof], dtype=np.float64),
-        "armature": np.array(mj.dof_armature[dof], dtype=np.float64),
-    }
-
-
 def described_terms(model) -> dict[str, np.ndarray]:
     """The description's damping, dry friction and armature per joint, ``(n_dof,)`` each in
     the model's joint order (0 where none is stated; a URDF states no armature).
@@ -65,4 +53,19 @@ def described_terms(model) -> dict[str, np.ndarray]:
                 same = fh.read() == model.source_xml
         except OSError:
             same = False
-    return _mjcf(model.source_xml, path if same else None, joints)
+    return mjcf_joint_terms(model.source_xml, path if same else None, joints)
+
+
+def description_theta(model) -> torch.Tensor:
+    """``(n_params,)`` float64: the description with everything it states: its inertials and,
+    in the model's joint terms, its damping (``viscous``), dry friction (``coulomb``) and
+    armature (``armature``). With a transmission the joint terms act per motor and stay 0."""
+    inertial = torch.as_tensor(model._tree.inertial, dtype=torch.float64)
+    if model.transmission is not None or not model.friction:
+        return model.layout.join(inertial)
+    stated = described_terms(model)
+    terms = torch.zeros(model.n_dof, len(model.friction), dtype=torch.float64)
+    for k, kind in enumerate(model.friction):
+        if kind in TERMS:
+            terms[:, k] = torch.as_tensor(stated[TERMS[kind]], dtype=torch.float64)
+    return model.layout.join(inertial, terms)

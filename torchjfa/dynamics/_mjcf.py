@@ -353,3 +353,20 @@ def fixed_base_mjcf(text: str, path: str | None) -> tuple[str, str]:
         return _full_precision(spec.to_xml(), spec), base.name or "base"
     except Exception as exc:
         raise ValueError(f"MuJoCo cannot compile this MJCF: {' '.join(str(exc).split())}") from None
+
+
+def mjcf_joint_terms(text: str, path: str | None, joints) -> dict[str, np.ndarray]:
+    """An MJCF's damping, dry friction (``frictionloss``) and armature of ``joints``, ``(n,)``
+    each, as MuJoCo compiles them (defaults classes applied)."""
+    import mujoco
+
+    try:
+        mj = mujoco.MjModel.from_xml_path(path) if path else mujoco.MjModel.from_xml_string(text)
+    except ValueError:  # the joints' text alone (a floating base's): compile it
+        mj = mujoco.MjModel.from_xml_string(text)
+    dof = [int(mj.jnt_dofadr[mj.joint(name).id]) for name in joints]
+    return {
+        "damping": np.array(mj.dof_damping[dof], dtype=np.float64),
+        "friction": np.array(mj.dof_frictionloss[dof], dtype=np.float64),
+        "armature": np.array(mj.dof_armature[dof], dtype=np.float64),
+    }

@@ -229,22 +229,10 @@ class RigidBodyModel(FrameKinematics):
 
     @property
     def description_theta(self) -> torch.Tensor:
-        """``(n_params,)`` float64: the description with everything it states: its inertials
-        and, in the model's joint terms, its damping (``viscous``), dry friction
-        (``coulomb``) and armature (``armature``): a URDF's ``<dynamics damping friction>``,
-        an MJCF joint's ``damping``, ``frictionloss`` and ``armature``. With a transmission
-        the joint terms act per motor and stay 0."""
-        from ._described import TERMS, described_terms
+        """``(n_params,)``: the description with its stated damping, friction and armature."""
+        from ._described import description_theta
 
-        inertial = torch.as_tensor(self._tree.inertial, dtype=torch.float64)
-        if self.transmission is not None or not self.friction:
-            return self.layout.join(inertial)
-        stated = described_terms(self)
-        terms = torch.zeros(self.n_dof, len(self.friction), dtype=torch.float64)
-        for k, kind in enumerate(self.friction):
-            if kind in TERMS:
-                terms[:, k] = torch.as_tensor(stated[TERMS[kind]], dtype=torch.float64)
-        return self.layout.join(inertial, terms)
+        return description_theta(self)
 
     def __repr__(self) -> str:
         where = self.source_path or "<string>"
