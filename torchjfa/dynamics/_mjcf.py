@@ -9,6 +9,7 @@ URDF side. Use `RigidBodyModel.from_mjcf` rather than this module.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import replace
 
@@ -255,11 +256,17 @@ def strip_urdf_for_mujoco(root, *, keep: tuple[str, ...] = (), **compiler: str):
     return root
 
 
-def mjcf_from_urdf(text: str) -> str:
+def mjcf_from_urdf(text: str, *, source_path: str | None = None, export: bool = False) -> str:
     """The MJCF of a URDF robot, as MuJoCo's URDF importer compiles it: the same links (bodies,
     fixed links kept as bodies without joints), joints, limits and inertials, gravity
     ``(0, 0, -9.81)`` m/s^2, no geometry (visuals and collisions are dropped, so that no mesh
     needs to be found).
+
+    With ``export``, what a simulation needs is kept: each link's ``<collision>`` geometry
+    (primitives, and meshes that MuJoCo reads, STL, OBJ or MSH, found from ``source_path``
+    as `torchjfa.dynamics._urdf.resolve_mesh` finds them and named by absolute paths; the
+    others left out), the bodies' masses from the inertials alone, and a torque motor per
+    joint (gear 1, its control range the URDF's ``<limit effort>`` where it gives one).
 
     Raises:
         ValueError: if MuJoCo cannot compile it.
@@ -268,13 +275,66 @@ def mjcf_from_urdf(text: str) -> str:
 
     import mujoco
 
-    root = strip_urdf_for_mujoco(ET.fromstring(text), fusestatic="false", balanceinertia="false")
+    root = ET.fromstring(text)
+    keep, extra, effort = (), {}, {}
+    if export:
+        _exportable_collisions(root, source_path)
+        keep, extra = ("collision",), {"inertiafromgeom": "false"}
+        for joint in root.iter("joint"):
+            limit = joint.find("limit")
+            with contextlib.suppress(TypeError, ValueError):
+                if limit is not None and float(limit.get("effort")) > 0:
+                    effort[joint.get("name")] = float(limit.get("effort"))
+    root = strip_urdf_for_mujoco(
+        root, keep=keep, fusestatic="false", balanceinertia="false", **extra
+    )
     try:
         spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+        if export:
+            _add_motors(spec, effort)
         spec.compile()
         return _full_precision(spec.to_xml(), spec)
     except Exception as exc:  # MuJoCo raises ValueError, and others for some specs
         raise ValueError(f"MuJoCo cannot compile this URDF: {exc}") from None
+
+
+#: the mesh files MuJoCo reads
+_MUJOCO_MESHES = (".stl", ".obj", ".msh")
+
+
+def _exportable_collisions(root, source_path: str | None) -> None:
+    """Each ``<collision>`` whose mesh MuJoCo cannot read (not found, or another format)
+    removed; the others' mesh files named by absolute paths (``root`` changed in place)."""
+    from ._urdf import resolve_mesh
+
+    for link in root.iter("link"):
+        for col in link.findall("collision"):
+            mesh = col.find("geometry/mesh")
+            if mesh is None:
+                continue
+            found = resolve_mesh(mesh.get("filename", ""), source_path)
+            if found is None or not found.lower().endswith(_MUJOCO_MESHES):
+                link.remove(col)
+            else:
+                mesh.set("filename", found)
+
+
+def _add_motors(spec, effort: dict[str, float]) -> None:
+    """A torque motor (gear 1) on each hinge and slide joint of ``spec``, named
+    ``<joint>_motor``, its control range the joint's effort limit where it has one."""
+    import mujoco
+
+    for joint in spec.joints:
+        if joint.type not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            continue
+        motor = spec.add_actuator()
+        motor.name = f"{joint.name}_motor"
+        motor.target = joint.name
+        motor.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        limit = effort.get(joint.name)
+        if limit is not None:
+            motor.ctrlrange = [-limit, limit]
+            motor.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
 
 def _full_precision(xml: str, spec) -> str:

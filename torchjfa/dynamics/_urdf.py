@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from pathlib import Path
 
 __all__ = ["check_urdf", "decode_xml", "fix_urdf_joints", "pk_chain_from_urdf"]
 
@@ -311,3 +313,32 @@ def pk_chain_from_urdf(links: dict[str, ET.Element], joints: dict[str, ET.Elemen
             f"{where}: pytorch-kinematics cannot build the chain: {type(exc).__name__}: "
             f"{exc}{extra}"
         ) from exc
+
+
+def resolve_mesh(filename: str, source_path: str | None) -> str | None:
+    """The absolute path of a URDF mesh file name, or None where it cannot be found.
+
+    ``package://PKG/REST`` is looked up, without ROS, in the folders of ``$ROS_PACKAGE_PATH``
+    (``PKG/REST`` in each) and in the description's own folders: the first ancestor named
+    ``PKG`` (``ANCESTOR/REST``), or with a subfolder ``PKG``. A relative name is taken from
+    the description's folder; ``file://`` is stripped.
+    """
+    if filename.startswith("file://"):
+        filename = filename[len("file://") :]
+    here = Path(source_path).resolve().parent if source_path else None
+    if not filename.startswith("package://"):
+        found = Path(filename) if os.path.isabs(filename) or here is None else here / filename
+        return str(found) if found.is_file() else None
+    package, _, rest = filename[len("package://") :].partition("/")
+    roots = [
+        Path(p) / package for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p
+    ]
+    if here is not None:
+        for folder in (here, *here.parents):
+            if folder.name == package:
+                roots.append(folder)
+            roots.append(folder / package)
+    for root in roots:
+        if (root / rest).is_file():
+            return str((root / rest).resolve())
+    return None

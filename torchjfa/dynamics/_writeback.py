@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import torch
+
+from ._urdf import resolve_mesh
 
 __all__ = ["write_urdf", "write_mjcf"]
 
@@ -45,35 +46,6 @@ def _values(model, theta: torch.Tensor):
                 "physically consistent parameters (torchjfa.physical) before writing it"
             )
     return inertials
-
-
-def resolve_mesh(filename: str, source_path: str | None) -> str | None:
-    """The absolute path of a URDF mesh file name, or None where it cannot be found.
-
-    ``package://PKG/REST`` is looked up, without ROS, in the folders of ``$ROS_PACKAGE_PATH``
-    (``PKG/REST`` in each) and in the description's own folders: the first ancestor named
-    ``PKG`` (``ANCESTOR/REST``), or with a subfolder ``PKG``. A relative name is taken from
-    the description's folder; ``file://`` is stripped.
-    """
-    if filename.startswith("file://"):
-        filename = filename[len("file://") :]
-    here = Path(source_path).resolve().parent if source_path else None
-    if not filename.startswith("package://"):
-        found = Path(filename) if os.path.isabs(filename) or here is None else here / filename
-        return str(found) if found.is_file() else None
-    package, _, rest = filename[len("package://") :].partition("/")
-    roots = [
-        Path(p) / package for p in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p
-    ]
-    if here is not None:
-        for folder in (here, *here.parents):
-            if folder.name == package:
-                roots.append(folder)
-            roots.append(folder / package)
-    for root in roots:
-        if (root / rest).is_file():
-            return str((root / rest).resolve())
-    return None
 
 
 def _resolve_meshes(root: ET.Element, source_path: str | None) -> None:
@@ -305,7 +277,7 @@ def _as_mjcf(model, theta: torch.Tensor):
     other = (
         type(model)
         .from_mjcf(
-            mjcf_from_urdf(model.source_xml),
+            mjcf_from_urdf(model.source_xml, source_path=model.source_path, export=True),
             friction=model.friction,
             gravity=model.gravity.tolist(),
             coulomb_velocity=model.coulomb_velocity,
@@ -323,7 +295,9 @@ def write_mjcf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     The ``<inertial>`` elements of the joints' bodies are replaced (numbers written in full
     precision); bodies must be named and defined in the main file (not in an ``<include>``).
     A URDF model is first turned into MJCF by MuJoCo's URDF importer
-    (`torchjfa.dynamics._mjcf.mjcf_from_urdf`: links as bodies, no geometry).
+    (`torchjfa.dynamics._mjcf.mjcf_from_urdf` with ``export``: links as bodies, their
+    collision geometry where MuJoCo can read it, meshes by absolute paths, and a torque motor
+    per joint within the URDF's effort limits), so that MuJoCo simulates it as it is.
 
     Args:
         model: a `RigidBodyModel`; theta: ``(n_params,)`` physically consistent parameters;
