@@ -278,8 +278,8 @@ def mjcf_from_urdf(text: str, *, source_path: str | None = None, export: bool = 
     root = ET.fromstring(text)
     keep, extra, effort = (), {}, {}
     if export:
-        _exportable_collisions(root, source_path)
-        keep, extra = ("collision",), {"inertiafromgeom": "false"}
+        mujoco_collisions(root, source_path)
+        keep, extra = ("collision",), {"inertiafromgeom": "false", "strippath": "false"}
         for joint in root.iter("joint"):
             limit = joint.find("limit")
             with contextlib.suppress(TypeError, ValueError):
@@ -302,11 +302,14 @@ def mjcf_from_urdf(text: str, *, source_path: str | None = None, export: bool = 
 _MUJOCO_MESHES = (".stl", ".obj", ".msh")
 
 
-def _exportable_collisions(root, source_path: str | None) -> None:
-    """Each ``<collision>`` whose mesh MuJoCo cannot read (not found, or another format)
-    removed; the others' mesh files named by absolute paths (``root`` changed in place)."""
+def mujoco_collisions(root, source_path: str | None) -> list[str]:
+    """A parsed URDF's ``<collision>`` meshes made readable by MuJoCo (``root`` changed in
+    place): each mesh file found (`torchjfa.dynamics._urdf.resolve_mesh`) named by its absolute
+    path, each collision whose mesh is not found or not in a format MuJoCo reads (STL, OBJ,
+    MSH) removed. Returns the removed ones, ``"link: filename"``."""
     from ._urdf import resolve_mesh
 
+    removed = []
     for link in root.iter("link"):
         for col in link.findall("collision"):
             mesh = col.find("geometry/mesh")
@@ -314,9 +317,11 @@ def _exportable_collisions(root, source_path: str | None) -> None:
                 continue
             found = resolve_mesh(mesh.get("filename", ""), source_path)
             if found is None or not found.lower().endswith(_MUJOCO_MESHES):
+                removed.append(f"{link.get('name')}: {mesh.get('filename')}")
                 link.remove(col)
             else:
                 mesh.set("filename", found)
+    return removed
 
 
 def _add_motors(spec, effort: dict[str, float]) -> None:

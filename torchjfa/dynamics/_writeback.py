@@ -133,14 +133,19 @@ def _base_lumped(model) -> list[str]:
             if owner < 0 and name != model.base_name]  # fmt: skip
 
 
+def _parsed(path) -> ET.Element:
+    """The root of the XML file written at ``path``, its comments kept."""
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    return ET.parse(path, parser=parser).getroot()
+
+
 def write_floating_urdf(model, theta: torch.Tensor, path) -> None:
     """`write_urdf` of a `FloatingBaseModel`: the joints' bodies as for a fixed base, then the
     base's inertial on the root link (the links fixed to it lumped into it)."""
     theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
     mass, com, inertia = _base_inertial(model, theta)
     write_urdf(model.joints, theta[10:], path)
-    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
-    root = ET.parse(path, parser=parser).getroot()
+    root = _parsed(path)
     links = {link.get("name"): link for link in root.findall("link")}
     for name in _base_lumped(model):
         for old in links[name].findall("inertial") if name in links else ():
@@ -159,8 +164,7 @@ def write_floating_mjcf(model, theta: torch.Tensor, path) -> None:
     theta = torch.as_tensor(theta).detach().to(torch.float64).cpu()
     mass, com, inertia = _base_inertial(model, theta)
     write_mjcf(model.joints, theta[10:], path)
-    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
-    root = ET.parse(path, parser=parser).getroot()
+    root = _parsed(path)
     bodies = {el.get("name"): el for el in root.iter("body")}
     if model.base_name not in bodies:
         raise ValueError(f"the base body {model.base_name!r} is not in the MJCF written")

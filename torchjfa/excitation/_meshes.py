@@ -22,7 +22,6 @@ or MuJoCo cannot load it (a mesh file that is not there, a format it does not re
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -38,46 +37,15 @@ _N_SAMPLES = 32
 _FIXED = 1e-5
 
 
-def _resolve(filename: str, base: Path | None) -> str | None:
-    """An absolute path for a URDF mesh ``filename`` (``package://PKG/rest``: the folder
-    ``PKG`` above the description, or ``rest`` below one; ``file://``; relative to the file)."""
-    if base is None:
-        return filename if Path(filename).is_absolute() and Path(filename).is_file() else None
-    if filename.startswith("file://"):
-        filename = filename[len("file://") :]
-    if filename.startswith("package://"):
-        pkg, _, rest = filename[len("package://") :].partition("/")
-        for folder in base.parents:
-            if folder.name == pkg and (folder / rest).is_file():
-                return str(folder / rest)
-            if (folder / pkg / rest).is_file():
-                return str(folder / pkg / rest)
-        return None
-    path = Path(filename) if Path(filename).is_absolute() else base.parent / filename
-    return str(path) if path.is_file() else None
-
-
 def _urdf_for_mujoco(text: str, path: str | None) -> tuple[str, list[str]]:
     """The URDF with visuals dropped, mesh paths made absolute (collisions whose mesh is not
     found dropped: their names returned) and MuJoCo's compiler told to keep the paths."""
-    from ..dynamics._mjcf import strip_urdf_for_mujoco
+    from ..dynamics._mjcf import mujoco_collisions, strip_urdf_for_mujoco
 
     root = strip_urdf_for_mujoco(
         ET.fromstring(text), keep=("collision",), strippath="false", balanceinertia="true"
     )
-    base = Path(path).resolve() if path else None
-    missing = []
-    for link in root.findall("link"):
-        for col in link.findall("collision"):
-            mesh = col.find("geometry/mesh")
-            if mesh is None:
-                continue
-            found = _resolve(mesh.get("filename", ""), base)
-            if found is None or Path(found).suffix.lower() not in (".stl", ".obj", ".msh"):
-                missing.append(f"{link.get('name')}: {mesh.get('filename')}")
-                link.remove(col)
-            else:
-                mesh.set("filename", found)
+    missing = mujoco_collisions(root, path)
     return ET.tostring(root, encoding="unicode"), missing
 
 

@@ -285,21 +285,9 @@ def contact_moments(
     flat: Collection[str] = (),
     chunk_size: int = 2048,
 ) -> Moments:
-    """The `Moments` of a legged log's regression rows (`contact_equations`), streamed
-    ``chunk_size`` samples at a time, for any estimator's ``fit_moments``: `row_moments`
-    with every row weighted 1.
-
-    Args:
-        model: the robot.
-        log: a `torchjfa.data.LeggedLog` with ``v`` and ``a`` (`torchjfa.data.prepare_legged`).
-        rows: as `contact_equations`; the log's ``contact`` flags and ``wrench`` are passed
-            (flags for ``"projected"``, wrenches otherwise).
-        flat: as `contact_equations`.
-        chunk_size: samples per chunk.
-
-    Raises:
-        ValueError: on a log without velocities or accelerations, or as `contact_equations`.
-    """
+    """The `Moments` of a legged log's regression rows (`contact_equations`), for any
+    estimator's ``fit_moments``: `row_moments` (the same arguments and errors) with every row
+    weighted 1."""
     return row_moments(model, log, rows=rows, flat=flat, chunk_size=chunk_size).combined()
 
 
