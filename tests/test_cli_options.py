@@ -127,3 +127,32 @@ def test_only_the_simulation_and_the_mjcf_reader_import_mujoco():
     code = "import sys, torchjfa.cli, torchjfa.identification; assert 'mujoco' not in sys.modules"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_the_commands_help_imports_neither_torch_nor_the_flow():
+    """``torchjfa --help`` answers at once: the package's top level, the command line's entry
+    and its list of sub-commands import torch only when a command needs it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, contextlib, io\n"
+        "from torchjfa.cli import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+        "    try:\n"
+        "        main(['--help'])\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "assert 'identify' in out.getvalue(), out.getvalue()\n"
+        "heavy = sorted(m for m in ('torch', 'numpy', 'scipy', 'mujoco') if m in sys.modules)\n"
+        "assert not heavy, heavy\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    import torchjfa
+
+    assert torchjfa.identify is torchjfa.identification.identify  # the top level, when used
+    assert "Options" in dir(torchjfa) and "Options" in torchjfa.__all__
+    assert torchjfa.io.read_identified and torchjfa.dynamics.FloatingBaseModel  # subpackages
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        torchjfa.nothing  # noqa: B018

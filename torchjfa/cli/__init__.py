@@ -21,13 +21,34 @@ one line on stderr and exit status 2, not a traceback; ``--debug`` shows the tra
 module of the library imports this package.
 """
 
-from ._common import UsageError as UsageError
-from ._common import load_model as load_model
-from ._identify import identify_options as identify_options
+from typing import TYPE_CHECKING
+
 from ._main import COMMANDS as COMMANDS
-from ._main import ESTIMATORS as ESTIMATORS
 from ._main import build_parser as build_parser
 from ._main import entry as entry
 from ._main import main as main
 
+if TYPE_CHECKING:
+    from ._common import UsageError as UsageError
+    from ._common import load_model as load_model
+    from ._identify import identify_options as identify_options
+    from ._main import ESTIMATORS as ESTIMATORS
+
+__all__ = [
+    "COMMANDS", "ESTIMATORS", "UsageError", "build_parser", "entry", "identify_options",
+    "load_model", "main",
+]  # fmt: skip
+
 _entry = entry  # the console script's earlier target, kept for installs made before it moved
+
+#: names imported when first asked for (``torchjfa --help`` imports neither torch nor the flow)
+_LAZY = {"UsageError": "_common", "load_model": "_common", "identify_options": "_identify",
+         "ESTIMATORS": "_main"}  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        from importlib import import_module
+
+        return getattr(import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -11,16 +11,11 @@ import shlex
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import MISSING, Field
+from typing import TYPE_CHECKING
 
-from .._util import OutputError, check_output, output_lock
-from ..identification._options import (
-    GROUPS,
-    IdentificationError,
-    Options,
-    cli_fields,
-    joint_terms,
-    parser_type,
-)
+if TYPE_CHECKING:  # imported where used: ``torchjfa --help`` imports neither torch nor the flow
+    from ..identification._options import IdentificationError as UsageError
+    from ..identification._options import Options
 
 __all__ = [
     "COMMANDS",
@@ -40,8 +35,16 @@ __all__ = [
     "written_as",
 ]
 
-#: bad input from the user: printed as one line, exit status 2 (the flow's own error)
-UsageError = IdentificationError
+
+def __getattr__(name: str):
+    """``UsageError``: bad input from the user, printed as one line with exit status 2 (the
+    flow's own `torchjfa.identification.IdentificationError`), imported when first asked for."""
+    if name == "UsageError":
+        from ..identification._errors import IdentificationError
+
+        return IdentificationError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: the sub-commands, in the order ``torchjfa --help`` lists them: name -> one-line help (each
 #: sub-command's parser takes its help from here)
@@ -100,7 +103,9 @@ def default_of(function, name: str):
 
 def usage(exc: Exception) -> UsageError:
     """A library's ``ValueError`` as the command line's one-line error."""
-    return UsageError(" ".join(str(exc).split()))
+    from ..identification._errors import IdentificationError
+
+    return IdentificationError(" ".join(str(exc).split()))
 
 
 def command_line(args) -> str:
@@ -141,6 +146,9 @@ def claimed_output(args) -> Iterator[None]:
     """Check ``args.out`` before any work (a file where a folder belongs, a symbolic link, a
     folder of other files without ``--overwrite``) and, for a folder, hold its lock until the
     command ends, so that a second run into it is refused at once, not after its work."""
+    from .._util import OutputError, check_output, output_lock
+    from ..identification._errors import IdentificationError as UsageError
+
     kind = getattr(args, "output", None)
     with ExitStack() as stack:
         if kind is not None:
@@ -167,6 +175,9 @@ def numbers(text: str) -> tuple[float, ...]:
 
 def friction_terms(text: str) -> tuple[str, ...]:
     """``--friction``: `torchjfa.identification.joint_terms` of the text, as an argument type."""
+    from ..identification._options import IdentificationError as UsageError
+    from ..identification._options import joint_terms
+
     try:
         return joint_terms(text)
     except UsageError as exc:
@@ -181,6 +192,8 @@ def add_option(group, f: Field) -> None:
     """One `Options` field's flag: a bool's switch, else a value with its parser and choices
     (the field's metadata gives the flag, the help, the choices and the parser; the default
     is the field's)."""
+    from ..identification._options import parser_type
+
     meta, default = f.metadata, _default(f)
     flag = meta["flag"] or "--" + f.name.replace("_", "-")
     if isinstance(default, bool):
@@ -211,6 +224,8 @@ def add_reading(p: argparse.ArgumentParser, *more: str) -> None:
     """The reading options of `torchjfa.identification.Options` (columns, time scale, drive
     gains, ROS topic and effort), as ``identify`` has them, and the fields ``more`` names (in
     their own groups)."""
+    from ..identification._options import GROUPS, cli_fields
+
     groups: dict[str, object] = {}
     for f in cli_fields():
         reads = f.metadata["group"] == "reading" and f.name != "max_seconds"
@@ -224,6 +239,8 @@ def add_reading(p: argparse.ArgumentParser, *more: str) -> None:
 def reading(args, *more: str) -> Options:
     """The `torchjfa.identification.Options` of the flags ``add_reading(p, *more)`` added (the
     others at their defaults)."""
+    from ..identification._options import Options, cli_fields
+
     fields = [f for f in cli_fields() if f.metadata["group"] == "reading" or f.name in more]
     return Options(**{f.name: getattr(args, f.name) for f in fields if hasattr(args, f.name)})
 

@@ -5,14 +5,26 @@ from __future__ import annotations
 import argparse
 import sys
 from importlib import import_module
+from typing import TYPE_CHECKING
 
-from .._util import OutputError
-from ..estimators import available as _estimators
-from ._common import COMMANDS, Parser, UsageError, claimed_output
+from ._common import COMMANDS, Parser
 
 __all__ = ["COMMANDS", "ESTIMATORS", "build_parser", "main"]
 
-ESTIMATORS = _estimators()  # the library's; a registered one is taken by torchjfa.identify
+if TYPE_CHECKING:
+    #: the library's estimators' names (`torchjfa.estimators.available`), read when first used
+    ESTIMATORS: tuple[str, ...]
+
+
+def __getattr__(name: str):
+    """``ESTIMATORS``: the library's estimators' names (a registered one is taken by
+    ``torchjfa identify`` too), imported when first asked for: ``torchjfa --help`` imports
+    neither torch nor the flow."""
+    if name == "ESTIMATORS":
+        from ..estimators import available
+
+        return available()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _add_residual(sub) -> argparse.ArgumentParser:
@@ -83,12 +95,15 @@ def main(argv=None) -> int:
     not a traceback; ``--debug`` shows the traceback. So does an ``--out`` the command will not
     write (checked before any work), and Ctrl-C ends with one line, leaving ``--out`` as it was.
     """
-    from ..data import LogError
-
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(_command(argv) or "")
     args = parser.parse_args(argv)
     args.argv = argv
+    from .._util import OutputError
+    from ..data import LogError
+    from ..identification._errors import IdentificationError as UsageError
+    from ._common import claimed_output
+
     try:
         with claimed_output(args):
             return int(args.func(args) or 0)

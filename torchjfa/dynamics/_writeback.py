@@ -278,10 +278,14 @@ def _as_mjcf(model, theta: torch.Tensor):
     """A URDF model as the MJCF model MuJoCo makes of it, with theta in that model's order."""
     from ._mjcf import mjcf_from_urdf
 
+    try:  # with its collision geometry and motors, unless MuJoCo cannot read a mesh found
+        text = mjcf_from_urdf(model.source_xml, source_path=model.source_path, export=True)
+    except ValueError:
+        text = mjcf_from_urdf(model.source_xml)
     other = (
         type(model)
         .from_mjcf(
-            mjcf_from_urdf(model.source_xml, source_path=model.source_path, export=True),
+            text,
             friction=model.friction,
             gravity=model.gravity.tolist(),
             coulomb_velocity=model.coulomb_velocity,
