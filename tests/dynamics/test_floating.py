@@ -311,3 +311,24 @@ def test_an_mjcf_without_one_free_joint_is_refused():
         FloatingBaseModel.from_mjcf(spec.to_xml())
     with pytest.raises(ValueError, match="FloatingBaseModel.from_mjcf"):
         RigidBodyModel.from_mjcf(_go2_mjcf(mujoco, path, scenery=False))
+
+
+def test_a_floating_descriptions_stated_damping_enters_its_description_theta():
+    mujoco = pytest.importorskip("mujoco")
+    from torchjfa.dynamics._mjcf import mjcf_from_urdf
+
+    path = erd_path(LEGGED["go2"])
+    spec = mujoco.MjSpec.from_string(mjcf_from_urdf(Path(path).read_text()))
+    spec.worldbody.first_body().add_freejoint(name="root")
+    for k, joint in enumerate(j for j in spec.joints if j.name != "root"):
+        joint.damping = [0.1 * (k + 1), 0.0, 0.0]  # MuJoCo: the damping, then a polynomial
+    spec.compile()
+    model = FloatingBaseModel.from_mjcf(spec.to_xml(), friction=("viscous", "coulomb"))
+    theta = model.description_theta
+    torch.testing.assert_close(theta[:10], model.nominal_theta[:10])
+    _, terms = model.joints.layout.split(theta[10:])
+    names = [j.name for j in spec.joints if j.name != "root"]
+    expected = torch.tensor([0.1 * (names.index(j) + 1) for j in model.joint_names],
+                            dtype=torch.float64)  # fmt: skip
+    torch.testing.assert_close(terms[:, 0], expected)
+    assert bool((terms[:, 1] == 0).all())

@@ -157,6 +157,12 @@ class FloatingBaseModel:
         return torch.cat([self._base_inertial.clone(), self.joints.nominal_theta])
 
     @property
+    def description_theta(self) -> torch.Tensor:
+        """``(n_params,)`` float64: the description with the damping, dry friction and armature
+        it states in the joint terms (`RigidBodyModel.description_theta`)."""
+        return torch.cat([self._base_inertial.clone(), self.joints.description_theta])
+
+    @property
     def gravity(self) -> torch.Tensor:
         """``(3,)`` float64, m/s^2, in the world frame."""
         return self.joints.gravity

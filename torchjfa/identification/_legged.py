@@ -369,7 +369,7 @@ def identify_legged(
     labels = BASE_ROW_LABELS + (() if rows == "base" else model.joint_names)
     held_out = {
         "measured": test.target_rms(),
-        "description": test.rms(model.nominal_theta),
+        "description": test.rms(model.description_theta),
         "estimate": test.rms(theta_hat),
         "identified": test.rms(theta),
     }

@@ -117,7 +117,7 @@ def evaluate_legged(identified, logs, options: Options | None = None, *, cutoff_
             "log": os.fspath(source) if isinstance(source, str | os.PathLike) else "log",
             "samples": m.n_samples,
             "measured": m.target_rms(),
-            "description": m.rms(model.nominal_theta),
+            "description": m.rms(model.description_theta),
             "identified": m.rms(theta),
         })  # fmt: skip
     return result

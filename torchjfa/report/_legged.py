@@ -56,8 +56,9 @@ def legged_markdown(ident, images: dict[str, str] | None = None) -> str:
     out += [
         "Each row's RMS residual on the held-out samples (base rows: N and N m, joint rows: "
         "N m or N), against the unfiltered torques and contact wrenches: the description "
-        "as it is, the unconstrained estimate, and the identified (physically consistent) "
-        f"parameters. Rows: {s.get('rows')}.",
+        "with everything it states (its inertials, and its joints' damping and friction "
+        "where it gives them), the unconstrained estimate, and the identified (physically "
+        f"consistent) parameters. Rows: {s.get('rows')}.",
         "",
         *_rows_table(ident),
     ]
