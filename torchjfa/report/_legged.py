@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util import output_folder
+from ._descriptions import write_descriptions
 from ._figures import _figure
 
 __all__ = ["write_legged", "legged_markdown"]
@@ -105,25 +106,15 @@ def _masses_figure(ident, path):
 
 def _write_descriptions(ident, stage: Path) -> dict[str, str]:
     """``identified.xml`` (MJCF with a ``<freejoint>``) and, for a URDF robot,
-    ``identified.urdf``, where every body is consistent; records in
+    ``identified.urdf``, where every body is consistent (`write_descriptions`); records in
     ``settings["description_file"]`` what was written or why not."""
     if not ident.consistent:
         ident.settings["description_file"] = "not written: some bodies are not consistent"
         return {}
-    files = {"mjcf": "identified.xml"}
-    if ident.model.joints.source_format == "urdf":
-        files["description"] = "identified.urdf"
-    written, failed = {}, []
-    for key, name in files.items():
-        write = ident.model.write_urdf if name.endswith(".urdf") else ident.model.write_mjcf
-        try:
-            write(ident.theta, stage / name)
-            written[key] = name
-        except (ValueError, OSError) as exc:
-            (stage / name).unlink(missing_ok=True)
-            failed.append(f"{name} not written: {exc}")
-    ident.settings["description_file"] = "; ".join([f"`{n}`" for n in written.values()] + failed)
-    return written
+    urdf = ident.model.joints.source_format == "urdf"
+    written, what = write_descriptions(ident.model, ident.theta, stage, urdf=urdf)
+    ident.settings["description_file"] = what
+    return {key: path.name for key, path in written.items()}
 
 
 def write_legged(

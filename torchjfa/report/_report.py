@@ -19,6 +19,7 @@ from ..data import JointLog
 from ..metrics import nmse, rms
 from ..physical import BaseParameters, ConsistencyReport, base_parameters, check
 from ._appendix import appendix as appendix_lines
+from ._descriptions import write_descriptions
 from ._figures import parameters_figure, torques_figure
 from ._markdown import report_markdown
 from ._result import IdentificationResult
@@ -341,22 +342,11 @@ class IdentificationReport:
         if not self.consistency.weakly_ok:
             self.settings["description_file"] = "not written: the parameters are not consistent"
             return {}
-        files = {"mjcf": out / "identified.xml"}
-        if self.model.source_format == "urdf":
-            files["description"] = out / "identified.urdf"
-        written, failed = {}, []
-        for key, path in files.items():
-            write = self.model.write_urdf if path.suffix == ".urdf" else self.model.write_mjcf
-            try:
-                write(self.result.theta, path)
-            except (ValueError, OSError) as exc:
-                failed.append(f"{path.name} not written: {exc}")
-                continue
-            written[key] = path
-        if "description" not in files and "mjcf" in written:
+        urdf = self.model.source_format == "urdf"
+        written, what = write_descriptions(self.model, self.result.theta, out, urdf=urdf)
+        if not urdf and "mjcf" in written:
             written["description"] = written["mjcf"]
-        names = sorted({p.name for p in written.values()})
-        self.settings["description_file"] = "; ".join([f"`{n}`" for n in names[::-1]] + failed)
+        self.settings["description_file"] = what
         return written
 
     def markdown(
