@@ -222,3 +222,33 @@ def test_an_exported_mjcf_has_collision_meshes_and_motors_that_replay_the_model(
         mujoco.mj_forward(mj, data)
         # the mass matrix solve of a 7-joint arm: round-off of 1e-12 of the accelerations
         np.testing.assert_allclose(data.qacc[dofs], qdd.numpy(), rtol=0, atol=1e-9)
+
+
+def test_a_link_the_description_leaves_without_inertia_is_exported_with_the_identified_one(
+    tmp_path,
+):
+    """MuJoCo refuses a moving body with no mass and inertia; the export gives it the
+    identified ones (as a real TX40 description leaves its last link's inertia zero)."""
+    text = TWO_LINK.replace(
+        '<mass value="0.5"/>\n    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.006" iyz="0" '
+        'izz="0.005"/>',
+        '<mass value="0"/>\n    <inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/>',
+    )
+    assert text != TWO_LINK
+    urdf = tmp_path / "massless.urdf"
+    urdf.write_text(text)
+    model = RigidBodyModel.from_urdf(str(urdf))
+    reference = RigidBodyModel.from_urdf(TWO_LINK)
+    theta = reference.nominal_theta  # the second link with mass and inertia
+    model.write_mjcf(theta, tmp_path / "arm.xml")
+    mj = mujoco.MjModel.from_xml_path(str(tmp_path / "arm.xml"))
+    mj.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    data = mujoco.MjData(mj)
+    g = torch.Generator().manual_seed(1)
+    for _ in range(3):
+        q, qd, qdd = (torch.randn(2, generator=g, dtype=torch.float64) for _ in range(3))
+        data.qpos[:], data.qvel[:], data.qacc[:] = q.numpy(), qd.numpy(), qdd.numpy()
+        mujoco.mj_inverse(mj, data)
+        expected = reference.inverse_dynamics(q, qd, qdd, theta)
+        got = torch.as_tensor(data.qfrc_inverse)
+        assert torch.allclose(got, expected, rtol=1e-9, atol=1e-9 * float(expected.abs().max()))

@@ -80,6 +80,13 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
         raise ValueError(
             f"write_urdf needs a model read from URDF; this one is {model.source_format}"
         )
+    text = _identified_urdf(model, theta)
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)
+
+
+def _identified_urdf(model, theta: torch.Tensor) -> str:
+    """The text `write_urdf` writes."""
     inertials = _values(model, theta)
     parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
     root = ET.fromstring(model.source_xml, parser=parser)
@@ -92,10 +99,7 @@ def write_urdf(model, theta: torch.Tensor, path: str | os.PathLike) -> None:
     _write_urdf_dynamics(model, theta, root)
     _resolve_meshes(root, model.source_path)
     ET.indent(root, space="  ")
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write('<?xml version="1.0"?>\n')
-        fh.write(ET.tostring(root, encoding="unicode"))
-        fh.write("\n")
+    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
 def _inertial_element(link: ET.Element, com, mass, inertia) -> None:
@@ -275,13 +279,17 @@ def _write_joint_terms(model, theta: torch.Tensor, root: ET.Element) -> None:
 
 
 def _as_mjcf(model, theta: torch.Tensor):
-    """A URDF model as the MJCF model MuJoCo makes of it, with theta in that model's order."""
+    """A URDF model as the MJCF model MuJoCo makes of it, with theta in that model's order.
+
+    The URDF is converted with theta's inertials already in it: MuJoCo refuses a moving body
+    whose description gives it no mass or inertia, which the identified parameters give."""
     from ._mjcf import mjcf_from_urdf
 
+    urdf = _identified_urdf(model, theta)
     try:  # with its collision geometry and motors, unless MuJoCo cannot read a mesh found
-        text = mjcf_from_urdf(model.source_xml, source_path=model.source_path, export=True)
+        text = mjcf_from_urdf(urdf, source_path=model.source_path, export=True)
     except ValueError:
-        text = mjcf_from_urdf(model.source_xml)
+        text = mjcf_from_urdf(urdf)
     other = (
         type(model)
         .from_mjcf(
