@@ -4,7 +4,9 @@
 truth). `read_log` reads CSV, NPZ and Parquet logs and ROS bags into one (torques, or motor
 currents with drive gains; time in s, ms, us or ns); `prepare` resamples, filters,
 differentiates, trims and decimates it; `choose_cutoff` picks its filter's cut-off from the
-data; `differentiate` is the filter and derivatives alone, `edge_seconds` its reach at a log's
+data, `armature_helps` whether the motors' armature predicts better, and `coupled_drives`
+which consecutive joints a motor turning both (a drive train the model lacks) would explain;
+`differentiate` is the filter and derivatives alone, `edge_seconds` its reach at a log's
 ends;
 `motion_span` finds the standing still at a log's ends;
 `check_log` finds logs that cannot identify anything (gaps, no motion, degrees, velocities in
@@ -24,6 +26,8 @@ from ._checks import check_log as check_log
 from ._columns import SPIKE_RANGE as SPIKE_RANGE
 from ._columns import SPIKE_STEPS as SPIKE_STEPS
 from ._columns import spike_rows as spike_rows
+from ._coupling import CoupledDrive as CoupledDrive
+from ._coupling import coupled_drives as coupled_drives
 from ._coverage import DEFAULT_COVERAGE_LIMIT as DEFAULT_COVERAGE_LIMIT
 from ._coverage import Coverage as Coverage
 from ._coverage import coverage as coverage

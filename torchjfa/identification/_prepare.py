@@ -19,6 +19,7 @@ from ..data import (
     LogError,
     armature_helps,
     choose_cutoff,
+    coupled_drives,
     cutoff_grid,
     edge_seconds,
     prepare,
@@ -183,6 +184,7 @@ def prepare_data(
     if len(raws) > 1 and options.cutoff == "auto":
         how += f" (on the longest log, {raws[longest].log.source})"
     terms, terms_how = _armature(model, pick, options, not held, cutoff, v_c)
+    warnings += _coupled(model, pick, options, not held, cutoff, v_c, terms)
     prep = {
         "cutoff_hz": cutoff,
         "method": options.filter,
@@ -255,6 +257,28 @@ def _armature(model, log, options: Options, held_in_log: bool, cutoff: float, v_
     except LogError as exc:
         return None, f"left out: the log is too short to tell ({exc})"
     return ((*model.friction, "armature") if helps else None), how
+
+
+def _coupled(model, log, options: Options, held_in_log: bool, cutoff: float, v_c: float, terms):
+    """Warnings naming consecutive joints that a shared motor the model lacks would explain
+    (`torchjfa.data.coupled_drives`); none where a drive train is given."""
+    if model.transmission is not None or model.n_dof < 2:
+        return []
+    model = model.with_coulomb_velocity(v_c)
+    if terms is not None:
+        model = model.with_joint_terms(terms)
+    try:
+        found = coupled_drives(
+            model,
+            _choice_log(log, options, held_in_log),
+            cutoff,
+            method=options.filter,
+            velocity=options.velocity,
+            compiled=options.compute.compiled,
+        )
+    except LogError:  # too short to tell: nothing to say
+        return []
+    return [f.describe() for f in found]
 
 
 def _choice_log(log: JointLog, options: Options, held_in_log: bool) -> JointLog:

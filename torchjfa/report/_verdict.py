@@ -7,7 +7,8 @@ nothing from `torchjfa.report`); `next_steps` applies the rules below, most urge
 
 1. the measured torque is a multiple of the description's prediction far from 1, or runs
    against it on a joint: units (or motor currents without drive gains) or a flipped sign;
-2. the held-out error is worse than the description's (or than the torques' mean);
+2. the held-out error is worse than the description's (or than the torques' mean); then
+   consecutive joints whose torques a motor turning both would explain (a coupled drive);
 3. the estimator stopped at its iteration cap;
 4. the parameters are not (fully) physically consistent;
 5. joints the model explains badly, or whose parameters the log excites too little;
@@ -43,6 +44,7 @@ MAX_STEPS = 3
 _URGENT = (
     ("did not converge", 0),
     ("runs against", 0),
+    ("coupled drive", 0),
     ("look like deg", 0),
     ("disagree with the positions", 0),
     ("do not follow the positions", 0),
@@ -221,6 +223,7 @@ def next_steps(report, verdict: Verdict, model_path: str = "model.npz") -> list[
     blocking = [_units_step(report), _worse_step(verdict)]
     steps = [
         *blocking,
+        _coupled_step(verdict.warnings),
         _convergence_step(report.result.estimator),
         _consistency_step(report),
         _excite_step(report, verdict),
@@ -295,6 +298,24 @@ def _worse_step(v: Verdict) -> str | None:
             "the torques and the joint order (the warnings); do not use this model"
         )
     return None
+
+
+#: the joints a coupled-drive warning names (`torchjfa.data.CoupledDrive.describe`)
+_COUPLED = re.compile(r"the torques of (\S+) and (\S+) follow each other's acceleration")
+
+
+def _coupled_step(warnings) -> str | None:
+    """Rule 2b: consecutive joints whose torques a motor turning both would explain."""
+    pairs = [m.groups() for w in warnings if (m := _COUPLED.search(w))]
+    if not pairs:
+        return None
+    named = "; ".join(f"{a} and {b}" for a, b in pairs)
+    return (
+        f"{named}: their torques follow each other's motion as one motor turning both would "
+        "(a coupled drive the description lacks; the evidence in the warnings): write the drive "
+        "train to a file (motor velocity = ratio @ joint velocity, a row with two entries for "
+        "that motor) and identify again with `--transmission FILE`"
+    )
 
 
 def _convergence_step(est) -> str | None:
