@@ -9,7 +9,8 @@ for joint logs):
   ``base_wx, base_wy, base_wz`` (rad/s), Pinocchio's free-flyer velocity (all six or none;
   without them `prepare_legged` differentiates the pose);
 * per joint ``q_<joint>``, optionally ``qd_<joint>`` (every joint or none) and ``tau_<joint>``
-  (N m; every joint or none: without torques only the base rows can be regressed);
+  (N m; every joint or none: without torques only the base rows can be regressed), or the
+  motor currents ``i_<joint>`` (A) with drive gains (N m/A) that turn them into torques;
 * per contact frame ``contact_<frame>`` (0 or 1), and where measured the ground's force on it
   ``f_<frame>_x/_y/_z`` (N, world axes) and moment ``m_<frame>_x/_y/_z`` (N m, about the
   frame's origin, world axes).
@@ -22,6 +23,7 @@ base's angular velocity from the quaternion, ``w = 2 vec(q* dq/dt)`` in base axe
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -156,7 +158,11 @@ def _all_or_none(raw, names: list[str], what: str, problems: list[str]) -> np.nd
 
 
 def read_legged_log(
-    path: str | os.PathLike, *, time_scale: float | None = None, format: str | None = None
+    path: str | os.PathLike,
+    *,
+    time_scale: float | None = None,
+    format: str | None = None,
+    drive_gains: Mapping[str, float] | None = None,
 ) -> LeggedLog:
     """Read a legged robot's log (the columns of the module).
 
@@ -164,6 +170,9 @@ def read_legged_log(
         path: a ``.csv``, ``.npz`` or ``.parquet`` file.
         time_scale: seconds per unit of ``t`` (None: seconds, or a unit found from the step).
         format: ``"csv"``, ``"npz"`` or ``"parquet"`` (default from the suffix).
+        drive_gains: N m/A per joint name, for a log with motor currents ``i_<joint>`` (A)
+            instead of joint torques: ``tau = gain * i``, one gain for every joint with a
+            current column.
 
     Returns:
         A `LeggedLog` (``a`` None; ``v`` None unless the twist and every ``qd_`` are logged).
@@ -197,7 +206,11 @@ def read_legged_log(
     q = _all_or_none(raw, [f"q_{j}" for j in joints], "joint positions", problems)
     qd = _all_or_none(raw, [f"qd_{j}" for j in joints], "joint velocities", problems)
     tau = _all_or_none(raw, [f"tau_{j}" for j in joints], "joint torques", problems)
-    stray = sorted(set(_prefixed(raw, "qd_") + _prefixed(raw, "tau_")) - set(joints))
+    currents = _all_or_none(raw, [f"i_{j}" for j in joints], "motor currents", problems)
+    tau = _torques(tau, currents, joints, drive_gains, problems, info)
+    stray = sorted(
+        set(_prefixed(raw, "qd_") + _prefixed(raw, "tau_") + _prefixed(raw, "i_")) - set(joints)
+    )
     if stray:
         problems.append(f"velocities or torques of joints without a position column: {stray}")
     if (twist is None) != (qd is None) and not problems:
@@ -241,6 +254,38 @@ def read_legged_log(
     q_full = np.column_stack([pose[:, :3], pose[:, 3:7] / norm[:, None], q])
     v = None if twist is None else np.column_stack([twist, qd])
     return LeggedLog(t, q_full, v, None, tau, contact, wrench, tuple(joints), info)
+
+
+def _torques(tau, currents, joints, gains, problems: list[str], info: dict):
+    """The joint torques: the logged ones, or the currents times ``gains`` (N m/A); every
+    contradiction (both, currents without gains, gains without currents, gains for other
+    joints) added to ``problems``."""
+    if gains is None:
+        if currents is not None and tau is None:
+            problems.append(
+                "motor currents (i_<joint>) without drive gains: give one per joint (N m/A)"
+            )
+        return tau
+    gains = {str(k): float(v) for k, v in dict(gains).items()}
+    bad = {k: v for k, v in gains.items() if not (np.isfinite(v) and v != 0.0)}
+    foreign = sorted(set(gains) - set(joints))
+    if foreign:
+        problems.append(f"drive gains for {foreign}, which are not joints of the log {joints}")
+    if bad:
+        problems.append(f"drive gains must be finite and nonzero, got {bad}")
+    if currents is None:
+        problems.append("drive gains without motor-current columns i_<joint>")
+        return tau
+    if tau is not None:
+        problems.append("both joint torques (tau_) and motor currents (i_): log one of them")
+        return tau
+    missing = [j for j in joints if j not in gains]
+    if missing:
+        problems.append(f"no drive gains for the joints {missing}")
+    if foreign or bad or missing:
+        return None
+    info["drive_gains"] = {j: gains[j] for j in joints}
+    return currents * np.array([gains[j] for j in joints])
 
 
 def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -408,7 +408,16 @@ def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, pr
         "weighting": options.weighting,
         "description_prior": prior_how,
         "total_mass": "none" if options.total_mass is None else f"{options.total_mass:g} kg",
+        "drive_gains": _gains_text(raws),
     }
+
+
+def _gains_text(raws) -> str:
+    """The drive gains the logs' currents were read with, or that the logs hold torques."""
+    gains = raws[0].info.get("drive_gains")
+    if not gains:
+        return "none (the logs hold joint torques)"
+    return "motor currents times " + ", ".join(f"{j} {g:g}" for j, g in gains.items()) + " N m/A"
 
 
 def _pair(raw, cutoff, filter_, edge) -> tuple[LeggedLog, LeggedLog]:

@@ -5,7 +5,7 @@ logs give (`choose_rows`) and which options apply."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import fields
 from pathlib import Path
 
@@ -30,7 +30,7 @@ LEGGED_COULOMB_VELOCITY = 0.05
 #: options the floating-base flow does not take (their defaults are ignored; another value
 #: is an error)
 _ARM_ONLY = (
-    "columns", "drop_nan", "drop_outliers", "drop_cut_line", "drive_gains", "topic", "effort",
+    "columns", "drop_nan", "drop_outliers", "drop_cut_line", "topic", "effort",
     "velocity", "period", "skip_start", "decimate", "armature", "transmission",
     "input_noise", "jackknife", "bias_correction", "parametrization", "projection_options",
 )  # fmt: skip
@@ -109,10 +109,17 @@ def check_legged_options(options: Options) -> None:
 
 def read_legged(source, model: FloatingBaseModel, options: Options) -> LeggedLog:
     """A legged log, its joints in the model's order and its contact frames checked."""
-    log = source if isinstance(source, LeggedLog) else read_legged_log(
-        source, time_scale=options.time_scale
-    )  # fmt: skip
     name = source if isinstance(source, str | os.PathLike) else "the log"
+    gains = _drive_gains(options.drive_gains, model)
+    if isinstance(source, LeggedLog):
+        if gains is not None:
+            raise LogError(
+                "drive gains turn a log file's motor currents (i_<joint>) into torques; a "
+                "LeggedLog holds torques already"
+            )
+        log = source
+    else:
+        log = read_legged_log(source, time_scale=options.time_scale, drive_gains=gains)
     if options.max_seconds is not None:
         log = log.select(log.t <= log.t[0] + float(options.max_seconds))
     have, want = list(log.joint_names), list(model.joint_names)
@@ -144,6 +151,19 @@ def read_legged(source, model: FloatingBaseModel, options: Options) -> LeggedLog
     out = LeggedLog(log.t, q, v, None, tau, log.contact, log.wrench, tuple(want), log.info)
     out.info["source"] = str(name)
     return out
+
+
+def _drive_gains(gains, model: FloatingBaseModel) -> dict[str, float] | None:
+    """``options.drive_gains`` per joint name (a sequence in the model's joint order)."""
+    if gains is None or isinstance(gains, Mapping):
+        return None if gains is None else {str(k): float(v) for k, v in gains.items()}
+    gains = list(gains)
+    if len(gains) != model.n_dof:
+        raise LogError(
+            f"{len(gains)} drive gains for the {model.n_dof} joints "
+            f"{', '.join(model.joint_names)}: give one per joint in this order, or joint=G,..."
+        )
+    return {j: float(g) for j, g in zip(model.joint_names, gains, strict=True)}
 
 
 def choose_rows(logs: Sequence[LeggedLog], options: Options) -> str:
