@@ -87,17 +87,6 @@ def test_bad_inputs_are_named():
         choose_cutoff(_Linear(), log, grid_hz=(300.0,))
 
 
-def test_a_short_log_is_scored_on_the_cut_offs_whose_reach_it_holds():
-    # 6 s and 3 blocks: a cut-off c needs more than 5 * 2 / c s, so 0.5 Hz (20 s) and 1 Hz
-    # (10 s) are left out, 2 Hz (5 s) and 4 Hz (2.5 s) are scored
-    choice = choose_cutoff(_Linear(), _log(seconds=6.0), grid_hz=(0.5, 1.0, 2.0, 4.0))
-    assert choice.grid_hz == (2.0, 4.0)
-    assert "cut-offs below 2 Hz left out" in choice.how
-    # one cut-off that fits is not a choice: the log is too short
-    with pytest.raises(LogError, match="too short to choose a cut-off"):
-        choose_cutoff(_Linear(), _log(seconds=6.0), grid_hz=(0.5, 1.0, 2.0))
-
-
 class _Dry(_Linear):
     """`_Linear` plus viscous and Coulomb columns, the Coulomb one ``tanh(qd / v)`` (sign at 0),
     with the `RigidBodyModel` interface `choose_cutoff` uses for it."""

@@ -13,8 +13,7 @@ drown in noise. `choose_cutoff` measures it:
    prediction on the block held out, for every block in turn; the samples within the filter's
    reach of a held-out block (``2 / min(grid)`` s: beyond it the zero-phase 4th-order
    Butterworth's impulse response holds under 0.5 % of its weight) are left out of its fit,
-   so that the fit does not see the held-out torques through the filter; a log too short for
-   the lowest cut-offs' reach is scored on the rest of the grid (at least two cut-offs);
+   so that the fit does not see the held-out torques through the filter;
 3. every cut-off is scored against ONE target, the same for all: the measured torque, not
    filtered. Against the torque filtered at each candidate's own cut-off, a lower cut-off would
    win by smoothing its own target. The raw torque's noise, independent of any prediction,
@@ -157,7 +156,6 @@ def choose_cutoff(
         by_width.append((j, per_width))
     E = torch.stack(errors)  # (n_grid, n)
     scores, se, best, pick = _one_standard_error(E, folds)
-    short = [c for c in grid if c < folds.grid[0] and c < 0.45 * folds.rate]
     grid = folds.grid
     shown = ", ".join(f"{c:g} Hz {float(s):.3g}" for c, s in zip(grid, scores, strict=True))
     how = (
@@ -166,11 +164,6 @@ def choose_cutoff(
         f"turn, {folds.reach:.3g} s apart from their fits, scored against the unfiltered "
         f"torque): mean nMSE {shown}; " + _verdict(grid, scores, se, best, pick)
     )
-    if short:
-        how += (
-            f" (cut-offs below {grid[0]:g} Hz left out: {log.duration:.3g} s of log cannot hold "
-            f"{n_folds} blocks and their filter's reach of 2 / cut-off s)"
-        )
     chosen_v, v_scores = None, ()
     if widths != [None]:
         j, v_scores = by_width[pick]
@@ -313,9 +306,6 @@ class _Folds:
         grid = [c for c in grid if c < 0.45 * rate]
         if not grid:
             raise LogError(f"{log.source}: no cut-off on the grid lies below {0.45 * rate:.4g} Hz")
-        if reach_s is None:  # a short log: the lowest cut-offs, whose reach it cannot hold, out
-            short = [c for c in grid if uniform.duration > (n_folds + 2) * 2.0 / c]
-            grid = short if len(short) >= 2 else grid
         reach = 2.0 / grid[0] if reach_s is None else float(reach_s)
         target_rate = 4.0 * grid[-1] if rate_hz is None else float(rate_hz)
         k = max(1, int(rate // target_rate))

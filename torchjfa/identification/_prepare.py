@@ -402,16 +402,21 @@ def _cutoff(model, log: JointLog, options: Options, held_in_log: bool, warnings:
             coulomb_grid=() if given_v else None,
         )
     except LogError as exc:
-        fallback = float(options.cutoff) if given else DEFAULT_CUTOFF_HZ
-        what = "the Coulomb smoothing velocity" if given else "--cutoff auto"
+        if not given:  # too short for the grid's reach: the default cut-off, v_c chosen at it
+            warnings.append(f"--cutoff auto: {exc}; {DEFAULT_CUTOFF_HZ:g} Hz used")
+            short = "the default: the log is too short to choose one (see the warnings)"
+            if given_v:
+                return DEFAULT_CUTOFF_HZ, short, model.coulomb_velocity
+            fallback = options.replace(cutoff=DEFAULT_CUTOFF_HZ)
+            cutoff, how, v_c = _cutoff(model, log, fallback, False, warnings)
+            return cutoff, how.replace("given (--cutoff)", short, 1), v_c
         sign = (
             ""
             if given_v
             else f", the Coulomb term's smoothing velocity {model.coulomb_velocity:g} rad/s"
         )
-        warnings.append(f"{what}: {exc}; {fallback:g} Hz used{sign}")
-        how = "given (--cutoff)" if given else "the default: the log is too short to choose one"
-        return fallback, how + " (see the warnings)", model.coulomb_velocity
+        warnings.append(f"the Coulomb smoothing velocity: {exc}; {options.cutoff:g} Hz used{sign}")
+        return float(options.cutoff), "given (--cutoff) (see the warnings)", model.coulomb_velocity
     if choice.coulomb_velocity is None:
         return choice.cutoff_hz, choice.how, model.coulomb_velocity
     if given:
