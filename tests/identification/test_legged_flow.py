@@ -133,7 +133,7 @@ def test_the_command_writes_a_report_and_a_urdf_that_pinocchio_reads(go2, tmp_pa
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--drive-gains", "1,2"], "drive_gains"),
+        (["--drive-gains", "1,2"], "2 drive gains for the 12 joints"),
         (["--base-rows-only", "LOG=flags"], "needs the contact forces"),
         (["--flat-contacts", "nose"], "not contact frames"),
         (["--appendix"], "--appendix"),

@@ -192,7 +192,7 @@ def add_option(group, f: Field) -> None:
     """One `Options` field's flag: a bool's switch, else a value with its parser and choices
     (the field's metadata gives the flag, the help, the choices and the parser; the default
     is the field's)."""
-    from ..identification._options import parser_type
+    from ..identification._option_field import parser_type
 
     meta, default = f.metadata, _default(f)
     flag = meta["flag"] or "--" + f.name.replace("_", "-")

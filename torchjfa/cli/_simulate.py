@@ -161,6 +161,9 @@ def _add_legged(p: argparse.ArgumentParser) -> None:
     g.add_argument("--truth-seed", type=int, default=0, help="seed of the perturbation")
     g.add_argument("--no-forces", action="store_true",
                    help="write contact flags only, no forces (no force sensors)")  # fmt: skip
+    g.add_argument("--imu", default=None, metavar="LINK",
+                   help="an IMU on this link (fixed to the base): write its gyroscope and "
+                   "accelerometer (imu_wx.., imu_ax..); identify with --imu-frame LINK")  # fmt: skip
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -221,6 +224,7 @@ def _simulate_legged(args) -> int:
             rate=args.rate or 200.0, perturb=args.perturb, truth_seed=args.truth_seed,
             seed=args.seed, progress=not args.quiet, amplitude=args.amplitude,
             foot_size=_pair(args.foot_size, "--foot-size"), gains=_pair(args.gains, "--gains"),
+            imu=args.imu,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         raise usage(exc) from None
@@ -233,6 +237,7 @@ def _simulate_legged(args) -> int:
         f"wrote {len(log.t)} samples ({args.seconds:g} s) of the simulated {Path(args.robot).name} "
         f"(total mass {mass:.4g} kg) to {out}; identify with:\n"
         f"  torchjfa identify {shlex.quote(args.robot)} {shlex.quote(str(out))} --out result/"
+        + (f" --imu-frame {shlex.quote(args.imu)}" if args.imu else "")
     )
     return 0
 

@@ -44,6 +44,7 @@ from ._differentiate import edge_seconds as edge_seconds
 from ._differentiate import savgol_window as savgol_window
 from ._legged import BASE_POSE as BASE_POSE
 from ._legged import BASE_TWIST as BASE_TWIST
+from ._legged import IMU_COLUMNS as IMU_COLUMNS
 from ._legged import LeggedLog as LeggedLog
 from ._legged import prepare_legged as prepare_legged
 from ._legged import read_legged_log as read_legged_log

@@ -13,7 +13,11 @@ for joint logs):
   motor currents ``i_<joint>`` (A) with drive gains (N m/A) that turn them into torques;
 * per contact frame ``contact_<frame>`` (0 or 1), and where measured the ground's force on it
   ``f_<frame>_x/_y/_z`` (N, world axes) and moment ``m_<frame>_x/_y/_z`` (N m, about the
-  frame's origin, world axes).
+  frame's origin, world axes);
+* optionally an IMU fixed to the base: ``imu_wx, imu_wy, imu_wz`` (its gyroscope, rad/s) and
+  ``imu_ax, imu_ay, imu_az`` (its accelerometer's specific force, m/s^2), in its own axes;
+  `prepare_legged` then takes the base's angular velocity, angular and linear acceleration
+  from them instead of differentiating the pose twice.
 
 `read_legged_log` names every missing or contradictory column in one error; `prepare_legged`
 filters every signal with one zero-phase low-pass filter and differentiates the motion (the
@@ -39,6 +43,9 @@ __all__ = ["LeggedLog", "read_legged_log", "prepare_legged", "BASE_POSE", "BASE_
 
 BASE_POSE = ("base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw")
 BASE_TWIST = ("base_vx", "base_vy", "base_vz", "base_wx", "base_wy", "base_wz")
+#: an IMU's columns: its gyroscope (rad/s) and its accelerometer (the specific force, m/s^2:
+#: the acceleration minus gravity, +9.81 up at rest), each in the IMU's own axes
+IMU_COLUMNS = {"w": ("imu_wx", "imu_wy", "imu_wz"), "a": ("imu_ax", "imu_ay", "imu_az")}
 _QUAT_TOL = 1e-3
 _AXES = ("x", "y", "z")
 
@@ -59,6 +66,8 @@ class LeggedLog:
             frame's origin), world axes.
         joint_names: the joints, in the columns' order.
         info: what reading and preparing did (``format``, ``time_scale``, ``cutoff_hz``).
+        imu: ``"w"`` -> ``(T, 3)`` gyroscope (rad/s), ``"a"`` -> ``(T, 3)`` accelerometer
+            (specific force, m/s^2), in the IMU's axes (`IMU_COLUMNS`); empty without an IMU.
     """
 
     t: np.ndarray
@@ -70,6 +79,7 @@ class LeggedLog:
     wrench: dict[str, np.ndarray]
     joint_names: tuple[str, ...]
     info: dict = field(default_factory=dict)
+    imu: dict[str, np.ndarray] = field(default_factory=dict)
 
     def columns(self) -> dict[str, np.ndarray]:
         """The log as the named columns of the module (``a`` is not written)."""
@@ -90,6 +100,8 @@ class LeggedLog:
                 out[f"f_{frame}_{axis}"] = w[:, i]
                 if w.shape[1] == 6:
                     out[f"m_{frame}_{axis}"] = w[:, 3 + i]
+        for key, x in self.imu.items():
+            out.update({name: x[:, i] for i, name in enumerate(IMU_COLUMNS[key])})
         return out
 
     def select(self, keep: np.ndarray) -> LeggedLog:
@@ -103,6 +115,7 @@ class LeggedLog:
             self, t=self.t[keep], q=self.q[keep], v=take(self.v), a=take(self.a),
             tau=take(self.tau), contact={k: c[keep] for k, c in self.contact.items()},
             wrench={k: w[keep] for k, w in self.wrench.items()},
+            imu={k: x[keep] for k, x in self.imu.items()},
         )  # fmt: skip
 
     def save(self, path: str | os.PathLike) -> None:
@@ -227,9 +240,21 @@ def read_legged_log(
         m = _all_or_none(raw, [f"m_{frame}_{a}" for a in _AXES], f"the moment on {frame}", problems)
         if f is not None:
             wrench[frame] = f if m is None else np.column_stack([f, m])
+    imu = {}
+    for key, names in IMU_COLUMNS.items():
+        x = _all_or_none(
+            raw,
+            list(names),
+            "the IMU's " + ("gyroscope" if key == "w" else "accelerometer"),
+            problems,
+        )
+        if x is not None:
+            imu[key] = x
+    if "a" in imu and "w" not in imu:
+        problems.append("an accelerometer (imu_a*) without the gyroscope (imu_w*)")
     if problems:
         raise LogError(f"{path}: " + "; ".join(problems))
-    signals = [pose, q, twist, qd, tau, *contact.values(), *wrench.values()]
+    signals = [pose, q, twist, qd, tau, *contact.values(), *wrench.values(), *imu.values()]
     bad = ~np.isfinite(t)
     for s in signals:
         if s is not None:
@@ -253,7 +278,7 @@ def read_legged_log(
             raise LogError(f"{path}: contact_{frame} must hold 0 or 1 only")
     q_full = np.column_stack([pose[:, :3], pose[:, 3:7] / norm[:, None], q])
     v = None if twist is None else np.column_stack([twist, qd])
-    return LeggedLog(t, q_full, v, None, tau, contact, wrench, tuple(joints), info)
+    return LeggedLog(t, q_full, v, None, tau, contact, wrench, tuple(joints), info, imu)
 
 
 def _torques(tau, currents, joints, gains, problems: list[str], info: dict):
@@ -304,7 +329,12 @@ def _rotate_to_base(quat: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def prepare_legged(
-    log: LeggedLog, *, cutoff_hz: float | None = DEFAULT_CUTOFF_HZ, method: str = "butterworth"
+    log: LeggedLog,
+    *,
+    cutoff_hz: float | None = DEFAULT_CUTOFF_HZ,
+    method: str = "butterworth",
+    imu_pose: tuple[np.ndarray, np.ndarray] | None = None,
+    gravity=(0.0, 0.0, -9.81),
 ) -> LeggedLog:
     """Filter every signal of a legged log with one zero-phase low-pass filter and fill in its
     velocities (where not logged) and accelerations.
@@ -315,10 +345,20 @@ def prepare_legged(
     instead. The quaternion's sign is made continuous first (``q`` and ``-q`` are one
     orientation) and it is normalised after filtering.
 
+    With an IMU (``log.imu``), its gyroscope turned into base axes is the angular velocity
+    (filtered, and differentiated once for the angular acceleration), and its accelerometer
+    gives the linear acceleration: the IMU point's acceleration is the specific force plus
+    gravity, the base origin's ``a_p - dw x p - w x (w x p)`` (``p`` the IMU's position on the
+    base), and the velocity's derivative in base axes that minus ``w x v``.
+
     Args:
         log: a `LeggedLog` with uniform time steps.
         cutoff_hz: the filter's cut-off, Hz (None: no filter), as `differentiate`.
         method: ``"butterworth"`` or ``"savgol"``, as `differentiate`.
+        imu_pose: ``(R, p)``: the IMU frame's ``(3, 3)`` rotation and ``(3,)`` position (m) in
+            the base frame (`torchjfa.dynamics.FloatingBaseModel.base_frame`); None: the base
+            frame itself.
+        gravity: ``(3,)`` m/s^2 in world axes, for the accelerometer.
 
     Returns:
         A new `LeggedLog` with ``v`` and ``a``, its signals filtered (contact flags as they
@@ -348,8 +388,27 @@ def prepare_legged(
     else:
         vel = differentiate(t, log.v, **kw)
         v, a = vel.value.numpy(), vel.first.numpy()
+    if log.imu:
+        v, a = _imu_motion(log, quat_f, v, a, imu_pose, gravity, kw)
     q = np.column_stack([pos.value.numpy(), quat_f, joints.value.numpy()])
     tau = None if log.tau is None else differentiate(t, log.tau, **kw).value.numpy()
     wrench = {k: differentiate(t, w_, **kw).value.numpy() for k, w_ in log.wrench.items()}
+    imu = {k: differentiate(t, x, **kw).value.numpy() for k, x in log.imu.items()}
     info = {**log.info, "cutoff_hz": cutoff_hz}
-    return replace(log, q=q, v=v, a=a, tau=tau, wrench=wrench, info=info)
+    return replace(log, q=q, v=v, a=a, tau=tau, wrench=wrench, info=info, imu=imu)
+
+
+def _imu_motion(log: LeggedLog, quat, v, a, pose, gravity, kw):
+    """``(v, a)`` with the base's angular velocity and accelerations from the IMU (see
+    `prepare_legged`)."""
+    R, p = (np.eye(3), np.zeros(3)) if pose is None else (np.asarray(pose[0]), np.asarray(pose[1]))
+    gyro = differentiate(log.t, log.imu["w"] @ R.T, **kw)
+    w, dw = gyro.value.numpy(), gyro.first.numpy()
+    v, a = v.copy(), a.copy()
+    v[:, 3:6], a[:, 3:6] = w, dw
+    if "a" in log.imu:
+        f = differentiate(log.t, log.imu["a"] @ R.T, **kw).value.numpy()
+        g = _rotate_to_base(quat, np.broadcast_to(np.asarray(gravity, float), f.shape).copy())
+        origin = f + g - np.cross(dw, p) - np.cross(w, np.cross(w, p))
+        a[:, :3] = origin - np.cross(w, v[:, :3])
+    return v, a

@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 from .._validation import as_tensor
@@ -310,6 +311,22 @@ class FloatingBaseModel:
         write_floating_mjcf(self, theta, path)
 
     # ------------------------------------------------------------------ contacts
+    def base_frame(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """A frame fixed to the base (an IMU's, say): its ``(3, 3)`` rotation and ``(3,)``
+        position, m, in the base frame.
+
+        Raises:
+            ValueError: on an unknown frame, or one that a joint moves.
+        """
+        (index,) = self.joints._frame_index([name])
+        tree = self.joints._tree
+        if tree.frame_owner[index] >= 0:
+            raise ValueError(
+                f"frame {name!r} moves with joint {self.joint_names[tree.frame_owner[index]]!r}: "
+                "an IMU must be fixed to the base"
+            )
+        return np.array(tree.frame_rot[index]), np.array(tree.frame_pos[index])
+
     def frame_jacobian(self, q, frames: str | Sequence[str]) -> torch.Tensor:
         """The Jacobians of frames (feet, sensors) in world axes: ``J v`` is the frame origin's
         linear velocity and the frame's angular velocity in the world frame, so that a wrench

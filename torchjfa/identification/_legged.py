@@ -178,10 +178,14 @@ def mass_index(model: FloatingBaseModel) -> torch.Tensor:
 
 
 def prepared_log(raw: LeggedLog, cutoff_hz: float, method: str = "butterworth") -> LeggedLog:
-    """`torchjfa.data.prepare_legged`, its refusals (a log too short for the filter) as a
+    """`torchjfa.data.prepare_legged` (with the IMU's place and gravity that `read_legged`
+    put in ``raw.info``), its refusals (a log too short for the filter) as a
     `torchjfa.data.LogError` naming the log."""
+    imu = {"imu_pose": raw.info.get("imu_pose"), "gravity": raw.info.get("gravity")}
     try:
-        return prepare_legged(raw, cutoff_hz=cutoff_hz, method=method)
+        return prepare_legged(
+            raw, cutoff_hz=cutoff_hz, method=method, **{k: v for k, v in imu.items() if v}
+        )
     except ValueError as exc:
         raise LogError(f"{raw.info.get('source', 'the log')}: {exc}") from None
 
@@ -409,6 +413,13 @@ def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, pr
         "description_prior": prior_how,
         "total_mass": "none" if options.total_mass is None else f"{options.total_mass:g} kg",
         "drive_gains": _gains_text(raws),
+        "imu": (
+            f"gyroscope{' and accelerometer' if 'a' in raws[0].imu else ''} in frame "
+            f"{raws[0].info['imu_frame']}: the base's angular motion"
+            + (" and linear acceleration" if "a" in raws[0].imu else "")
+            if raws[0].imu
+            else "none (the base's motion differentiated from its pose)"
+        ),
     }
 
 

@@ -148,9 +148,27 @@ def read_legged(source, model: FloatingBaseModel, options: Options) -> LeggedLog
     q = np.concatenate([log.q[:, :7], log.q[:, 7:][:, order]], 1)
     v = None if log.v is None else np.concatenate([log.v[:, :6], log.v[:, 6:][:, order]], 1)
     tau = None if log.tau is None else log.tau[:, order]
-    out = LeggedLog(log.t, q, v, None, tau, log.contact, log.wrench, tuple(want), log.info)
+    out = LeggedLog(log.t, q, v, None, tau, log.contact, log.wrench, tuple(want), dict(log.info),
+                    log.imu)  # fmt: skip
     out.info["source"] = str(name)
+    _imu_frame(out, model, options, name)
     return out
+
+
+def _imu_frame(log: LeggedLog, model: FloatingBaseModel, options: Options, name) -> None:
+    """Where the log's IMU sits (``options.imu_frame``, or the base), in ``log.info``
+    (``imu_frame``, ``imu_pose``, ``gravity``) for `torchjfa.data.prepare_legged`."""
+    if not log.imu:
+        if options.imu_frame is not None:
+            raise LogError(f"{name}: --imu-frame is given, but the log has no IMU columns "
+                           "(imu_wx, imu_wy, imu_wz and imu_ax, imu_ay, imu_az)")  # fmt: skip
+        return
+    frame = options.imu_frame or model.base_name
+    try:
+        pose = model.base_frame(frame)
+    except ValueError as exc:
+        raise LogError(f"{name}: --imu-frame {frame}: {exc}") from None
+    log.info.update(imu_frame=frame, imu_pose=pose, gravity=model.gravity.tolist())
 
 
 def _drive_gains(gains, model: FloatingBaseModel) -> dict[str, float] | None:

@@ -79,3 +79,11 @@ def check_estimator_options(o) -> None:
 def choice(name: str, value, allowed: Sequence[str]) -> None:
     if value not in allowed:
         raise IdentificationError(f"{name} must be one of {tuple(allowed)}, got {value!r}")
+
+
+def frame_names(value, what: str) -> tuple[str, ...]:
+    """``value`` (a name or several) as a tuple of frame names, or an error naming ``what``."""
+    names = (value,) if isinstance(value, str) else tuple(value)
+    if not all(isinstance(n, str) for n in names):
+        raise IdentificationError(f"{what} must be frame names, got {value!r}")
+    return names

@@ -6,7 +6,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import MISSING, Field, field
 
-__all__ = ["GROUPS", "option"]
+from . import _parse as parse
+
+__all__ = ["GROUPS", "option", "parser_type"]
 
 #: the groups of options, in the order the command's help lists them: name -> title
 GROUPS = {
@@ -54,3 +56,12 @@ def option(
     meta = {"group": group, "help": help, "parse": parse, "choices": choices, "flag": flag,
             "metavar": metavar, "cli": cli, "action": action}  # fmt: skip
     return field(default=default, default_factory=default_factory, metadata=meta)
+
+
+def parser_type(f: Field) -> Callable[[str], object]:
+    """The argparse ``type`` of a field: its ``parse`` (errors turned into argparse's)."""
+    fn = f.metadata.get("parse")
+    if fn is None:
+        default = f.default
+        fn = type(default) if default is not MISSING and default is not None else str
+    return parse.typed(fn)

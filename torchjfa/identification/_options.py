@@ -8,8 +8,8 @@ dataclasses and cannot drift from them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import MISSING, Field, dataclass, fields, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import Field, dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 import torch
@@ -20,7 +20,13 @@ from ..physical import DEFAULT_PARAMETRIZATION
 from ..stats import CHUNK_SIZE
 from . import _parse as parse
 from ._errors import IdentificationError, IdentificationWarning
-from ._option_checks import check_estimator_options, check_numbers, check_reading, choice
+from ._option_checks import (
+    check_estimator_options,
+    check_numbers,
+    check_reading,
+    choice,
+    frame_names,
+)
 from ._option_field import GROUPS, option
 
 if TYPE_CHECKING:
@@ -213,6 +219,7 @@ class Options:
         flat_contacts: contact frames that pass a moment too (flat feet, a hand gripping):
             without force sensors six directions are projected out for each of them, three
             (a force) for the others, point feet.
+        imu_frame: the frame fixed to the base that carries the log's IMU; None: the base.
 
     compute: `Compute` (chunking, device, processes, progress, the regressor's path).
     """
@@ -460,6 +467,13 @@ class Options:
         "contact flags only, six directions are projected out for each, three (a force) for "
         "the others (point feet)",
     )
+    imu_frame: str | None = option(
+        None,
+        group="floating",
+        metavar="FRAME",
+        help="the frame of the description that carries the log's IMU (imu_wx.., imu_ax..), "
+        "fixed to the base; by default the base frame itself",
+    )
     compute: Compute = option(group="compute", default_factory=Compute, cli=False, help="")
 
     def __post_init__(self) -> None:
@@ -493,7 +507,7 @@ class Options:
             raise IdentificationError(
                 f"total_mass must be None or a positive mass in kg, got {self.total_mass!r}"
             )
-        object.__setattr__(self, "flat_contacts", _names(self.flat_contacts, "flat_contacts"))
+        object.__setattr__(self, "flat_contacts", frame_names(self.flat_contacts, "flat_contacts"))
         if self.skip_start == "auto" and self.period is None:
             raise IdentificationError("skip_start='auto' needs a period ('auto' or seconds)")
         if (
@@ -518,13 +532,6 @@ class Options:
         return replace(self, **changes)
 
 
-def _names(value, what: str) -> tuple[str, ...]:
-    names = (value,) if isinstance(value, str) else tuple(value)
-    if not all(isinstance(n, str) for n in names):
-        raise IdentificationError(f"{what} must be frame names, got {value!r}")
-    return names
-
-
 def cli_fields(cls=Options) -> list[Field]:
     """The fields of ``cls`` (and of its `Compute`) the command line sets, in `GROUPS` order."""
     out = [f for f in fields(cls) if f.metadata.get("cli", False)]
@@ -532,12 +539,3 @@ def cli_fields(cls=Options) -> list[Field]:
         out += cli_fields(Compute)
     order = list(GROUPS)
     return sorted(out, key=lambda f: order.index(f.metadata["group"]))
-
-
-def parser_type(f: Field) -> Callable[[str], object]:
-    """The argparse ``type`` of a field: its ``parse`` (errors turned into argparse's)."""
-    fn = f.metadata.get("parse")
-    if fn is None:
-        default = f.default
-        fn = type(default) if default is not MISSING and default is not None else str
-    return parse.typed(fn)

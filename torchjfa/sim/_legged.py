@@ -32,7 +32,7 @@ __all__ = ["LEGGED_NOISE", "SimulatedLeggedLog", "simulate_legged"]
 
 #: the sensor noise of `SimulatedLeggedLog.noisy` at scale 1, standard deviations: base position
 #: (m), each base quaternion component, joint positions (rad), joint torques (N m), contact
-#: forces (N) and moments (N m)
+#: forces (N) and moments (N m), and an IMU's gyroscope (rad/s) and accelerometer (m/s^2)
 LEGGED_NOISE = {
     "base_position": 1e-3,
     "base_quaternion": 2e-3,
@@ -40,6 +40,8 @@ LEGGED_NOISE = {
     "joint_torque": 0.2,
     "force": 1.0,
     "moment": 0.02,
+    "gyro": 5e-3,
+    "accelerometer": 0.05,
 }
 
 _TIMESTEP = 0.001  # s
@@ -63,7 +65,7 @@ class SimulatedLeggedLog(LeggedLog):
     def noisy(self, scale: float = 1.0, seed: int = 0) -> LeggedLog:
         """The log as sensors would give it: Gaussian noise of `LEGGED_NOISE` times ``scale``
         on the base pose (the quaternion normalised again), the joint positions, the joint
-        torques and the contact wrenches; no velocities or accelerations (they are
+        torques, the contact wrenches and the IMU's readings; no velocities or accelerations (they are
         differentiated from the pose, `torchjfa.data.prepare_legged`), no truth.
 
         Raises:
@@ -81,8 +83,10 @@ class SimulatedLeggedLog(LeggedLog):
         tau = self.tau + rng.normal(scale=sd["joint_torque"], size=self.tau.shape)
         w_sd = np.array([sd["force"]] * 3 + [sd["moment"]] * 3)
         wrench = {k: w + w_sd * rng.normal(size=w.shape) for k, w in self.wrench.items()}
+        imu_sd = {"w": sd["gyro"], "a": sd["accelerometer"]}
+        imu = {k: x + rng.normal(scale=imu_sd[k], size=x.shape) for k, x in self.imu.items()}
         return LeggedLog(self.t.copy(), q, None, None, tau, dict(self.contact), wrench,
-                         self.joint_names, dict(self.info))  # fmt: skip
+                         self.joint_names, dict(self.info), imu)  # fmt: skip
 
 
 def _spec(path: str, feet: Sequence[str], radius: float, size=None) -> mujoco.MjSpec:
@@ -218,6 +222,7 @@ def simulate_legged(
     perturb: float = 0.0,
     truth_seed: int = 0,
     seed: int = 0,
+    imu: str | None = None,
     progress: bool = False,
 ) -> LeggedLog:
     """Simulate a legged robot standing and swaying its body (the module).
@@ -246,6 +251,9 @@ def simulate_legged(
             moved by ``perturb * 5 cm`` per axis); 0 simulates the description.
         truth_seed: the perturbation's random seed (one robot per seed).
         seed: the motion's random seed.
+        imu: a link fixed to the base that carries an IMU: its gyroscope and accelerometer
+            (MuJoCo's ``gyro`` and ``accelerometer`` sensors at the link's origin, in its
+            axes) are recorded as ``imu`` (`torchjfa.data.IMU_COLUMNS`); None: no IMU.
         progress: show a progress bar.
 
     Returns:
@@ -263,6 +271,8 @@ def simulate_legged(
     if unknown:
         raise ValueError(f"stance names {unknown}, which are not joints of {path!r}")
     spec = _spec(path, tuple(feet), foot_radius, foot_size)
+    if imu is not None:
+        _add_imu(spec, model, imu, path)
     mj = (
         _perturb(spec, float(perturb), np.random.default_rng(truth_seed))
         if perturb
@@ -292,7 +302,7 @@ def simulate_legged(
     foot_body = {mj.body(f).id: k for k, f in enumerate(feet)}
     every = max(1, round(1.0 / (rate * _TIMESTEP)))
     n_steps = round((_SETTLE + seconds) / _TIMESTEP)
-    rec: dict[str, list] = {k: [] for k in ("t", "q", "v", "a", "tau", "on", "w")}
+    rec: dict[str, list] = {k: [] for k in ("t", "q", "v", "a", "tau", "on", "w", "imu")}
     base_id = mj.body(spec.worldbody.first_body().name).id
     with progress_bar(total=n_steps, desc="simulating", unit="step", enabled=progress) as bar:
         for step in range(n_steps):
@@ -307,26 +317,14 @@ def simulate_legged(
             if t < _SETTLE or step % every:
                 continue
             mujoco.mj_forward(mj, data)  # accelerations and contacts of the recorded state
-            R = data.xmat[base_id].reshape(3, 3)
-            w = data.qvel[3:6].copy()
-            v_lin = R.T @ data.qvel[:3]  # MuJoCo's free joint: world-axis linear velocity
-            a_lin = R.T @ data.qacc[:3] - np.cross(w, v_lin)
             rec["t"].append(t - _SETTLE)
-            rec["q"].append(
-                np.concatenate([data.qpos[:3], data.qpos[[4, 5, 6, 3]], data.qpos[qadr]])
-            )
-            rec["v"].append(np.concatenate([v_lin, w, data.qvel[vadr]]))
-            rec["a"].append(np.concatenate([a_lin, data.qacc[3:6], data.qacc[vadr]]))
-            rec["tau"].append(data.qfrc_actuator[vadr].copy())
-            on, wrench = _foot_wrenches(mj, data, foot_body)
-            rec["on"].append(on)
-            rec["w"].append(wrench)
+            _record(rec, mj, data, base_id, qadr, vadr, foot_body)
             if data.qpos[2] < foot_radius:
                 raise ValueError(
                     f"the robot fell at t = {t - _SETTLE:.2f} s (base height {data.qpos[2]:.3f} m): "
                     "lower the amplitude or check the stance"
                 )
-    on, wrench = np.array(rec["on"]), np.array(rec["w"])
+    on, wrench, sensed = np.array(rec["on"]), np.array(rec["w"]), np.array(rec["imu"])
     return SimulatedLeggedLog(
         t=np.array(rec["t"]),
         q=np.array(rec["q"]),
@@ -337,5 +335,34 @@ def simulate_legged(
         wrench={foot: wrench[:, k] for k, foot in enumerate(feet)},
         joint_names=joints,
         info={"robot": path, "perturb": float(perturb), "seed": seed, "rate_hz": rate},
+        imu={} if imu is None else {"w": sensed[:, :3], "a": sensed[:, 3:6]},
         theta=_theta(mj, model),
     )
+
+
+def _record(rec: dict, mj, data, base_id: int, qadr, vadr, foot_body) -> None:
+    """Append the state MuJoCo holds (after ``mj_forward``) to ``rec``: pose, twist and
+    accelerations in the floating-base convention, torques, contacts, the IMU's sensors."""
+    R = data.xmat[base_id].reshape(3, 3)
+    w = data.qvel[3:6].copy()
+    v_lin = R.T @ data.qvel[:3]  # MuJoCo's free joint: world-axis linear velocity
+    a_lin = R.T @ data.qacc[:3] - np.cross(w, v_lin)
+    rec["q"].append(np.concatenate([data.qpos[:3], data.qpos[[4, 5, 6, 3]], data.qpos[qadr]]))
+    rec["v"].append(np.concatenate([v_lin, w, data.qvel[vadr]]))
+    rec["a"].append(np.concatenate([a_lin, data.qacc[3:6], data.qacc[vadr]]))
+    rec["tau"].append(data.qfrc_actuator[vadr].copy())
+    on, wrench = _foot_wrenches(mj, data, foot_body)
+    rec["on"].append(on)
+    rec["w"].append(wrench)
+    rec["imu"].append(data.sensordata[:6].copy())
+
+
+def _add_imu(spec: mujoco.MjSpec, model: FloatingBaseModel, link: str, path: str) -> None:
+    """A site at ``link``'s origin with a gyroscope and an accelerometer (sensordata[:6])."""
+    model.base_frame(link)  # fixed to the base, or a ValueError naming why not
+    bodies = {b.name: b for b in spec.bodies}
+    if link not in bodies:
+        raise ValueError(f"no link named {link!r} in {path!r} to carry the IMU")
+    site = bodies[link].add_site(name="torchjfa_imu")
+    for kind in (mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER):
+        spec.add_sensor(type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=site.name)
