@@ -9,7 +9,10 @@ The robot is example-robot-data's Go2 with every body perturbed by up to 20 %
 the same robot with different motions: one identifies, the other (noise-free) judges. The
 training log gets sensor noise (`torchjfa.sim.SimulatedLeggedLog.noisy`: base position 1 mm,
 quaternion components 2e-3, joint angles 2e-4 rad, joint torques 0.2 N m, foot forces 1 N and
-moments 0.02 N m) and no velocities: the pose is differentiated.
+moments 0.02 N m, IMU gyroscope 5e-3 rad/s and accelerometer 0.05 m/s^2) and no velocities.
+Each kind of contact information is fitted twice: with the base's motion differentiated from
+the pose, and with it from the IMU on the Go2's ``imu`` link (``--imu-frame imu``); the
+reference is prepared the same way.
 
 Two kinds of contact information, each with two fits:
 
@@ -124,7 +127,7 @@ def run(seconds: float, smoke: bool) -> int:
     """Simulate, identify and judge (the module); prints the table."""
     path = torchjfa.robots.example_robot_data_path("go2_description/urdf/go2.urdf")
     start = time.perf_counter()
-    train = simulate_legged(path, FEET, STANCE, seconds=seconds, perturb=0.2, seed=1)
+    train = simulate_legged(path, FEET, STANCE, seconds=seconds, perturb=0.2, seed=1, imu="imu")
     test = simulate_legged(path, FEET, STANCE, seconds=5.0, perturb=0.2, seed=2)
     noisy = train.noisy(seed=0)
     print(f"simulated in {time.perf_counter() - start:.1f} s: {len(train.t)} training samples, "
@@ -135,14 +138,18 @@ def run(seconds: float, smoke: bool) -> int:
     print(f"{'contact information':20s} {'fit':10s} {'held-out RMS':>13s} {'ratio':>7s} "
           f"{'total mass error':>17s} {'consistent':>11s}")  # fmt: skip
     options = Options(cutoff=CUTOFF_HZ) if smoke else Options()
-    for kind in ("forces", "flags"):
+    imu_pose = bare.base_frame("imu")
+    for kind, imu in (("forces", False), ("flags", False), ("forces", True), ("flags", True)):
         log = noisy if kind == "forces" else replace(noisy, wrench={})
+        log = log if imu else replace(log, imu={})
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentificationWarning)
-            ident = identify_legged(path, log, options)
+            ident = identify_legged(path, log, options.replace(imu_frame="imu" if imu else None))
         edge = edge_seconds(ident.cutoff_hz)
         keep = (log.t >= log.t[0] + edge) & (log.t <= log.t[-1] - edge)
-        prepared = prepare_legged(log, cutoff_hz=ident.cutoff_hz).select(keep)
+        pose = {"imu_pose": imu_pose} if imu else {}
+        prepared = prepare_legged(log, cutoff_hz=ident.cutoff_hz, **pose).select(keep)
+        label = f"{kind} + IMU" if imu else kind
         A, b = pinocchio.rows(prepared, kind)
         reference = np.linalg.lstsq(A, b, rcond=None)[0]
         base = judge(bare, test, kind)(reference)
@@ -153,7 +160,7 @@ def run(seconds: float, smoke: bool) -> int:
              "yes" if ident.consistent else "no"),
         ):  # fmt: skip
             err = 100.0 * (masses.sum() / truth.sum() - 1.0)
-            print(f"{kind:20s} {name:10s} {value:13.4f} {value / base:7.3f} {err:16.2f}% "
+            print(f"{label:20s} {name:10s} {value:13.4f} {value / base:7.3f} {err:16.2f}% "
                   f"{ok:>11s}")  # fmt: skip
         links = 100.0 * (np.array(list(ident.masses().values())) / truth - 1.0)
         print(f"{'':20s} torchjfa at {ident.cutoff_hz:g} Hz ({ident.cutoff_how.split(':')[0]}); "
