@@ -90,7 +90,10 @@ def coupled_drives(
             log's joints in its order.
         log: the raw training log, as for `torchjfa.data.choose_cutoff`.
         cutoff_hz: the cut-off the identification prepares with, Hz.
-        method, velocity, n_folds, compiled: as for `torchjfa.data.armature_helps`.
+        method: as for `torchjfa.data.armature_helps`.
+        velocity: as for `torchjfa.data.armature_helps`.
+        n_folds: as for `torchjfa.data.armature_helps`.
+        compiled: as for `torchjfa.data.armature_helps`.
 
     Returns:
         The pairs found, in joint order (empty where none).
