@@ -10,8 +10,9 @@ trials and `plot` draws the grouped bar chart. ``scripts/reproduce_fig2.py`` and
 
 from __future__ import annotations
 
+import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -28,12 +29,22 @@ __all__ = [
     "run",
     "summarize",
     "improvement_table",
+    "claim_table",
     "plot",
     "SCENARIOS",
+    "PAPER_BASELINES",
+    "CLAIM",
+    "SEED_STRIDE",
 ]
 
 #: (redundant, irrelevant) pairs of the paper; 10 relevant inputs make 100 in all
 SCENARIOS = ((0, 90), (30, 60), (60, 30), (90, 0))
+#: the paper's baselines: its claim is the best Bayesian method against the better of these
+PAPER_BASELINES = ("OLS", "Stepwise")
+#: the paper's claim: the best Bayesian method's clean-test nMSE at least 10 % below theirs
+CLAIM = 0.10
+#: seed ``s`` of `run` draws trial ``t`` with ``SEED_STRIDE * s + t``: seeds share no trial
+SEED_STRIDE = 1000
 
 
 @dataclass(frozen=True)
@@ -65,6 +76,7 @@ def _bayes(
     max_iter: int,
     cache: dict | None = None,
     ard: str = "shared",
+    n_starts: int | None = None,
 ) -> Callable:
     """A Bayesian JFA method; methods that share ``cache``, ``noise`` and ``ard`` share one fit
     per problem (eq. 3 and eq. 4 are two read-outs of the same fitted model)."""
@@ -75,7 +87,8 @@ def _bayes(
             est, elapsed = cache[key][1:]
         else:
             start = time.perf_counter()
-            est = BayesianJFA(input_noise=noise(p), max_iter=max_iter, ard=ard)
+            kw = {} if n_starts is None else {"n_starts": n_starts}
+            est = BayesianJFA(input_noise=noise(p), max_iter=max_iter, ard=ard, **kw)
             est.fit(p.X_train, p.y_train)
             elapsed = time.perf_counter() - start
             if cache is not None:
@@ -103,13 +116,25 @@ def _noise_from_repeats(p: SyntheticProblem) -> torch.Tensor:
 
 
 def default_methods(
-    *, bayes_max_iter: int = 100_000, lasso_options: dict | None = None
+    *,
+    bayes_max_iter: int = 100_000,
+    lasso_options: dict | None = None,
+    n_starts: int | None = None,
+    paper_only: bool = False,
 ) -> list[Method]:
     """Every method of the comparison: the paper's baselines, TLS and ridge, JFA, and Bayesian
     JFA as written (eq. 3 and eq. 4) and noise-informed (true noise; noise from repeats), the
-    latter with the paper's shared relevance prior and with ``ard="output"``."""
+    latter with the paper's shared relevance prior and with ``ard="output"``.
+
+    ``n_starts``: `BayesianJFA`'s number of starts (its default where None). ``paper_only``:
+    only the methods of the paper's claim, the baselines `PAPER_BASELINES` and the Bayesian
+    methods."""
     shared: dict = {}
-    return [
+
+    def bayes(which, noise, cache=None, ard="shared"):
+        return _bayes(which, noise, bayes_max_iter, cache, ard=ard, n_starts=n_starts)
+
+    others = [
         Method("OLS", _plain(OLS)),
         Method("Ridge (GCV)", _plain(Ridge)),
         Method("Stepwise", _plain(Stepwise)),
@@ -117,22 +142,22 @@ def default_methods(
         Method("LASSO (CV)", _plain(lambda: Lasso(**(lasso_options or {})))),
         Method("TLS", _plain(TLS)),
         Method("JFA", _plain(JFA)),
-        Method("Bayes JFA, eq. 3", _bayes("eq3", _no_noise, bayes_max_iter, shared), True),
-        Method("Bayes JFA, eq. 4", _bayes("eq4", _no_noise, bayes_max_iter, shared), True),
-        Method(
-            "Bayes JFA, noise from repeats",
-            _bayes("eq4", _noise_from_repeats, bayes_max_iter),
-            True,
-        ),
-        Method("Bayes JFA, known noise", _bayes("eq4", _known_noise, bayes_max_iter), True),
+    ]
+    if paper_only:
+        others = [m for m in others if m.name in PAPER_BASELINES]
+    return others + [
+        Method("Bayes JFA, eq. 3", bayes("eq3", _no_noise, shared), True),
+        Method("Bayes JFA, eq. 4", bayes("eq4", _no_noise, shared), True),
+        Method("Bayes JFA, noise from repeats", bayes("eq4", _noise_from_repeats), True),
+        Method("Bayes JFA, known noise", bayes("eq4", _known_noise), True),
         Method(
             "Bayes JFA, repeats, ARD on w_z",
-            _bayes("eq4", _noise_from_repeats, bayes_max_iter, ard="output"),
+            bayes("eq4", _noise_from_repeats, ard="output"),
             True,
         ),
         Method(
             "Bayes JFA, known noise, ARD on w_z",
-            _bayes("eq4", _known_noise, bayes_max_iter, ard="output"),
+            bayes("eq4", _known_noise, ard="output"),
             True,
         ),
     ]
@@ -158,9 +183,10 @@ def run(
     """Run the protocol and return one row per (scenario, SNR, trial, method, test set).
 
     Each row: ``redundant``, ``irrelevant``, ``input_snr``, ``trial``, ``method``, ``test``
-    (``"clean"`` or ``"noisy"``), ``nmse``, ``fit_s`` (seconds) and ``n_iter`` (EM iterations,
-    or -1). Trial ``t`` of every scenario and SNR uses seed ``seed + t`` so that methods and
-    settings see the same draws.
+    (``"clean"`` or ``"noisy"``), ``nmse``, ``fit_s`` (seconds) and ``n_iter`` (the fit's
+    iterations, or -1). Trial ``t`` of every scenario and SNR draws its data with seed
+    ``SEED_STRIDE * seed + t`` so that methods and settings see the same draws, and two seeds
+    share no trial (up to ``SEED_STRIDE`` trials).
     """
     methods = list(default_methods() if methods is None else methods)
     rows: list[dict] = []
@@ -170,7 +196,12 @@ def run(
             for snr in input_snrs:
                 for trial in range(n_trials):
                     p = make_problem(
-                        r, u, input_snr=snr, n_train=n_train, n_test=n_test, seed=seed + trial
+                        r,
+                        u,
+                        input_snr=snr,
+                        n_train=n_train,
+                        n_test=n_test,
+                        seed=SEED_STRIDE * seed + trial,
                     )
                     for m in methods:
                         start = time.perf_counter()
@@ -233,10 +264,15 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
 
 
 def improvement_table(
-    summary: Sequence[dict], *, methods: Sequence[Method] | None = None, test: str = "clean"
+    summary: Sequence[dict],
+    *,
+    methods: Sequence[Method] | None = None,
+    test: str = "clean",
+    baselines: Sequence[str] | None = None,
 ) -> list[dict]:
-    """Per scenario and SNR: the best Bayesian method, the best other method, and the relative
-    nMSE reduction ``1 - best_bayes / best_other`` (positive: the Bayesian method is better)."""
+    """Per scenario and SNR: the best Bayesian method, the best other method (of ``baselines``
+    where given, e.g. `PAPER_BASELINES`), and the relative nMSE reduction ``1 - best_bayes /
+    best_other`` (positive: the Bayesian method is better)."""
     bayes_names = {m.name for m in (methods or default_methods()) if m.bayesian}
     cells: dict[tuple, dict[str, float]] = {}
     for s in summary:
@@ -247,7 +283,11 @@ def improvement_table(
     out = []
     for (r, u, snr), by_method in cells.items():
         bayes = {k: v for k, v in by_method.items() if k in bayes_names}
-        other = {k: v for k, v in by_method.items() if k not in bayes_names}
+        other = {
+            k: v
+            for k, v in by_method.items()
+            if k not in bayes_names and (baselines is None or k in baselines)
+        }
         if not bayes or not other:
             continue
         b_name, o_name = min(bayes, key=bayes.get), min(other, key=other.get)
@@ -262,6 +302,37 @@ def improvement_table(
                 "best_other": o_name,
                 "best_other_nmse": other[o_name],
                 "reduction": 1.0 - bayes[b_name] / other[o_name],
+            }
+        )
+    return out
+
+
+def claim_table(gains: Mapping[int, Sequence[dict]], claim: float = CLAIM) -> list[dict]:
+    """The paper's claim per cell over seeds: ``gains`` maps each seed to its
+    `improvement_table` (the same cells in the same order). Per cell: the reductions of each
+    seed, their ``mean`` and sample standard deviation ``spread`` (0 for one seed), how many
+    seeds reach ``claim``, and ``holds``: the mean is at least ``claim``; ``within_spread``:
+    the mean falls short of ``claim`` by at most its spread."""
+    seeds = list(gains)
+    out = []
+    for k, cell in enumerate(gains[seeds[0]]):
+        red = [float(gains[s][k]["reduction"]) for s in seeds]
+        mean = sum(red) / len(red)
+        spread = (
+            math.sqrt(sum((x - mean) ** 2 for x in red) / (len(red) - 1)) if len(red) > 1 else 0.0
+        )
+        out.append(
+            {
+                "redundant": cell["redundant"],
+                "irrelevant": cell["irrelevant"],
+                "input_snr": cell["input_snr"],
+                "reductions": dict(zip(seeds, red, strict=True)),
+                "mean": mean,
+                "spread": spread,
+                "worst": min(red),
+                "n_held": sum(x >= claim for x in red),
+                "holds": mean >= claim,
+                "within_spread": mean >= claim - spread,
             }
         )
     return out

@@ -111,14 +111,24 @@ def optimal_rate(mz, mx, vz, vx, cfg: Settings) -> torch.Tensor:
     return 0.5 * w2 + cfg.b0
 
 
-def initial_state(S: Stats, psx_fixed: torch.Tensor | None, cfg: Settings) -> State:
+def initial_state(
+    S: Stats, psx_fixed: torch.Tensor | None, cfg: Settings, gen: torch.Generator | None = None
+) -> State:
     """The starting point (eq. 10): ``psi_x = 1/2`` (or the given noise), ``<w_x> = sqrt(1 -
     psi_x)``, ``<w_z> = cov(x, y) / <w_x>``, the variance of y left over split equally between
-    psi_y and sum psi_z, Q(alpha) at its optimum."""
+    psi_y and sum psi_z, Q(alpha) at its optimum.
+
+    With a generator ``gen``, a perturbed start (another start of a multi-start fit): each
+    learned ``psi_xm`` drawn uniformly from ``(0.2, 0.8)`` instead of 1/2, and each ``<w_zm>``
+    multiplied by ``exp(u)``, ``u`` normal with standard deviation 1/2."""
     xy, d = S.xy, S.xy.shape[-1]
     psx = torch.full_like(xy, 0.5) if psx_fixed is None else psx_fixed.clamp_min(cfg.noise_floor)
+    if gen is not None and psx_fixed is None:
+        psx = 0.2 + 0.6 * torch.rand(xy.shape, generator=gen, dtype=xy.dtype).to(xy.device)
     mx = torch.sqrt((1.0 - psx).clamp_min(0.01))
     mz = xy / S.n[..., None] / mx
+    if gen is not None:
+        mz = mz * torch.exp(0.5 * torch.randn(xy.shape, generator=gen, dtype=xy.dtype)).to(mz)
     # correlated inputs can explain more than var(y) at this start: keep 1 % of it
     left = (1.0 - (mz * mz).sum(-1)).clamp_min(0.01)
     psz = (0.5 * left / d)[..., None].expand_as(xy).clamp_min(cfg.noise_floor)
@@ -230,10 +240,12 @@ def update(S: Stats, st: State, es: EStep, cfg: Settings) -> State:
     return State(mz, mx, vz, vx, rate, psz, psx, psy)
 
 
-def first_sweep(S: Stats, psx_fixed: torch.Tensor | None, cfg: Settings) -> State:
+def first_sweep(
+    S: Stats, psx_fixed: torch.Tensor | None, cfg: Settings, gen: torch.Generator | None = None
+) -> State:
     """The state after one sweep from `initial_state` (whose zero variances have no bound):
-    where every fit starts."""
-    st = initial_state(S, psx_fixed, cfg)
+    where every fit starts (``gen``: a perturbed start, see `initial_state`)."""
+    st = initial_state(S, psx_fixed, cfg, gen)
     return update(S, st, estep(S, st, cfg)[0], cfg)
 
 
