@@ -661,3 +661,23 @@ def test_at_most_three_steps_most_urgent_first(good, report):
     assert len(steps) == 3
     assert "--drive-gains" in steps[0] and "did not converge" in steps[1]
     assert "triangle" in steps[2]
+
+
+def test_a_joint_no_fit_predicts_is_named_with_what_to_check(good):
+    """One joint's held-out nMSE at 1.4 for the identified model and 1.2 for the unconstrained
+    estimate, every other joint explained: that channel does not follow the motion."""
+    fits = dict(good.fits)
+    j = good.model.joint_names.index("neck_roll")
+    for name, value in (("identified", 1.4), ("unconstrained", 1.2)):
+        f = fits[name]
+        nmse = f.nmse.clone()
+        nmse[j] = value
+        fits[name] = _fit(nmse, f.rms, f.predicted)
+    steps = _steps(dataclasses.replace(good, fits=fits))
+    channel = [s for s in steps if "no better than its mean" in s]
+    assert len(channel) == 1 and "neck_roll (nMSE 1.4, unconstrained 1.2)" in channel[0]
+    assert "sign" in channel[0] and "offset" in channel[0]
+    # the unconstrained estimate explains it: the consistent model is at fault, not the channel
+    fits["unconstrained"] = good.fits["unconstrained"]
+    steps = _steps(dataclasses.replace(good, fits=fits))
+    assert not any("no better than its mean" in s for s in steps)

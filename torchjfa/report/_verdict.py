@@ -8,7 +8,9 @@ nothing from `torchjfa.report`); `next_steps` applies the rules below, most urge
 1. the measured torque is a multiple of the description's prediction far from 1, or runs
    against it on a joint: units (or motor currents without drive gains) or a flipped sign;
 2. the held-out error is worse than the description's (or than the torques' mean); then
-   consecutive joints whose torques a motor turning both would explain (a coupled drive);
+   consecutive joints whose torques a motor turning both would explain (a coupled drive); then
+   joints whose torque neither the model nor the unconstrained estimate predicts better than
+   its mean while the other joints are predicted (a channel that does not follow the motion);
 3. the estimator stopped at its iteration cap;
 4. the parameters are not (fully) physically consistent;
 5. joints the model explains badly, or whose parameters the log excites too little;
@@ -224,6 +226,7 @@ def next_steps(report, verdict: Verdict, model_path: str = "model.npz") -> list[
     steps = [
         *blocking,
         _coupled_step(verdict.warnings),
+        _channel_step(report),
         _convergence_step(report.result.estimator),
         _consistency_step(report),
         _excite_step(report, verdict),
@@ -315,6 +318,28 @@ def _coupled_step(warnings) -> str | None:
         "(a coupled drive the description lacks; the evidence in the warnings): write the drive "
         "train to a file (motor velocity = ratio @ joint velocity, a row with two entries for "
         "that motor) and identify again with `--transmission FILE`"
+    )
+
+
+def _channel_step(report) -> str | None:
+    """Rule 2c: joints whose held-out torque neither the identified model nor the
+    unconstrained estimate predicts better than its mean (nMSE of 1 or more)."""
+    fits = report.fits
+    if "unconstrained" not in fits:
+        return None
+    ident, free = fits["identified"].nmse, fits["unconstrained"].nmse
+    joints = report.model.joint_names
+    bad = [j for j in range(len(joints)) if float(ident[j]) >= 1.0 and float(free[j]) >= 1.0]
+    if not bad or len(bad) == len(joints):  # every joint: rule 2 speaks of the whole model
+        return None
+    named = ", ".join(
+        f"{joints[j]} (nMSE {float(ident[j]):.3g}, unconstrained {float(free[j]):.3g})" for j in bad
+    )
+    return (
+        f"the rigid-body model with its joint terms predicts the held-out torque of {named} no "
+        "better than its mean, although it predicts the other joints: that channel does not "
+        "follow the robot's motion; check its sign, an offset that drifts, the sensor and "
+        "its column"
     )
 
 
