@@ -62,9 +62,10 @@ from pathlib import Path
 
 import _benchmarks_page as page
 import torch
+from _real_arm import split as _split
 
 import torchjfa
-from torchjfa.data import JointLog, prepare, write_log
+from torchjfa.data import JointLog, prepare
 from torchjfa.identification import IdentificationWarning, load_model
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "panda_gaz2019"
@@ -145,15 +146,6 @@ def _evaluation(log: JointLog, t_split: float, t_end: float = math.inf) -> dict[
         "tau_raw": raw.tau[keep],
         "inside": inside.to(torch.float64).mean(),
     }
-
-
-def _split(log: JointLog, t_split: float, tmp: Path) -> tuple[Path, Path]:
-    """The log before ``t_split`` and from it on as CSV files: ``(train, held-out)``."""
-    n = int(torch.searchsorted(log.t, torch.tensor(t_split, dtype=log.t.dtype)))
-    train_csv, valid_csv = tmp / "train.csv", tmp / "heldout.csv"
-    write_log(log.select(slice(0, n)), train_csv)
-    write_log(log.select(slice(n, log.n_samples)), valid_csv)
-    return train_csv, valid_csv
 
 
 def _hand_tuned(base: torchjfa.Options, cutoff: float) -> torchjfa.Options:
