@@ -61,6 +61,20 @@ def test_exported_program_saved_and_loaded_gives_the_eager_torques(head, tmp_pat
         _assert_same(loaded(q, qd, qdd), idyn(q, qd, qdd))
 
 
+def test_export_gives_a_program_for_any_batch_size(head, tmp_path):
+    """`InverseDynamics.export`: traced once at its example's batch, it runs at any other,
+    batch 1 included, and survives a save and load."""
+    idyn = InverseDynamics(head, _theta(head))
+    program = idyn.export()
+    torch.export.save(program, tmp_path / "head.pt2")
+    loaded = torch.export.load(tmp_path / "head.pt2").module()
+    for n in (1, 7, 300):
+        q, qd, qdd = _states(head.n_dof, n, seed=10 + n)
+        _assert_same(loaded(q, qd, qdd), idyn(q, qd, qdd))
+    with pytest.raises(ValueError, match="batch must be an int >= 2"):
+        idyn.export(batch=1)
+
+
 def test_exporting_leaves_the_eager_model_as_it_was(head):
     model = RigidBodyModel.from_mjcf(model_path("head"))  # fresh: no cached constants yet
     idyn = InverseDynamics(model)

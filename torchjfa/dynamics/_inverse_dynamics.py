@@ -202,6 +202,34 @@ class InverseDynamics(nn.Module):
         m/s^2; the inverse of `forward`. See `torchjfa.dynamics.forward_dynamics`."""
         return forward_dynamics(self.model, q, qd, tau, self.theta)
 
+    def export(self, batch: int = 16, *, dtype=torch.float64, device=None):
+        """``torch.export.export`` of `forward` whose batch dimension is dynamic: the program
+        runs at any batch size (``program.module()(q, qd, qdd)``; save it with
+        ``torch.export.save``). It traces the torch path of the regressor (the compiled C++
+        kernel of eager CPU calls is not in the graph).
+
+        Args:
+            batch: the example's batch size (any size >= 2 gives the same program).
+            dtype: the example's dtype, as the program's inputs will be.
+            device: the example's device (default theta's).
+
+        Returns:
+            A ``torch.export.ExportedProgram`` taking ``(q, qd, qdd)`` of shape
+            ``(batch, n_dof)``.
+        """
+        from torch.export import Dim
+
+        if isinstance(batch, bool) or not isinstance(batch, int) or batch < 2:
+            raise ValueError(
+                f"batch must be an int >= 2 (1 would be traced as fixed), got {batch!r}"
+            )
+        device = self.theta.device if device is None else device
+        example = tuple(
+            torch.zeros(batch, self.model.n_dof, dtype=dtype, device=device) for _ in range(3)
+        )
+        dim = Dim("batch")
+        return torch.export.export(self, example, dynamic_shapes=({0: dim}, {0: dim}, {0: dim}))
+
     def inertials(self):
         """Per-joint-body mass, centre of mass and inertia of the current theta."""
         return self.model.inertials(self.theta.detach())
