@@ -9,15 +9,16 @@ the two joints' torques are predicted worse than the data allow, and nothing say
 
 `coupled_drives` tests each pair of consecutive joints: it adds to the model two columns, a
 shared constant cross inertia (``qdd_k`` in joint ``j``'s row, ``qdd_j`` in joint ``k``'s) and a
-shared cross damping (``qd_k``, ``qd_j``), and scores the held-out torque prediction of the
-two joints with and without them, as `armature_helps` scores the armature (ordinary least
-squares on the other blocks, the filter's reach apart, against the unfiltered torque). A pair
-is reported where the columns win by more than `MIN_SE` standard errors of the difference
-and by `CHANCE_FACTOR` times the largest change the cross terms of any pair sharing no joint
-with it make (on a short or poorly excited log, any two extra columns move the held-out score
-a lot, either way; a pair that shares a joint also moves with a true coupling), AND cut the two joints' held-out error by at least `MIN_GAIN` of its value: a drive
-train the description lacks (give it with ``--transmission``), or on a robot without one a sign of some
-other cross-talk between the two channels.
+shared cross damping (``qd_k``, ``qd_j``), and scores the held-out torque prediction of the two
+joints with and without them, as `armature_helps` scores the armature (ordinary least squares on
+the other blocks, the filter's reach apart, against the unfiltered torque). A pair is reported
+where the columns win by more than `MIN_SE` standard errors of the difference and by
+`CHANCE_FACTOR` times the largest change the cross terms of any pair sharing no joint with it
+make (on a short or poorly excited log, any two extra columns move the held-out score a lot,
+either way; a pair that shares a joint also moves with a true coupling), AND cut the two joints'
+held-out error by at least `MIN_GAIN` of its value: a drive train the description lacks (give it
+with ``--transmission``), or on a robot without one a sign of some other cross-talk between the
+two channels.
 """
 
 from __future__ import annotations

@@ -65,8 +65,8 @@ class SimulatedLeggedLog(LeggedLog):
     def noisy(self, scale: float = 1.0, seed: int = 0) -> LeggedLog:
         """The log as sensors would give it: Gaussian noise of `LEGGED_NOISE` times ``scale``
         on the base pose (the quaternion normalised again), the joint positions, the joint
-        torques, the contact wrenches and the IMU's readings; no velocities or accelerations (they are
-        differentiated from the pose, `torchjfa.data.prepare_legged`), no truth.
+        torques, the contact wrenches and the IMU's readings; no velocities or accelerations
+        (`torchjfa.data.prepare_legged` differentiates the pose, or reads the IMU), no truth.
 
         Raises:
             ValueError: on a negative or non-finite ``scale``.
