@@ -10,7 +10,7 @@ import pytest
 from _robots import GO2_FEET, GO2_STANCE, erd_path
 
 from torchjfa.data import LogError
-from torchjfa.identification import Options, identify_legged
+from torchjfa.identification import IdentificationWarning, Options, identify_legged
 from torchjfa.sim import simulate_legged
 
 
@@ -67,3 +67,12 @@ def test_simulate_with_an_imu_then_identify_on_the_command_line(go2, tmp_path, c
     rc = main(["identify", go2["path"], str(log), "--imu-frame", "FL_foot", "--cutoff", "10",
                "--out", str(tmp_path / "bad"), "--quiet", "--no-plots"])  # fmt: skip
     assert rc == 2 and "an IMU must be fixed to the base" in capsys.readouterr().err
+
+
+def test_an_imu_without_its_frame_is_taken_at_the_base_and_said_so(go2):
+    with pytest.warns(IdentificationWarning, match="taken to sit at the base frame"):
+        ident = identify_legged(go2["path"], go2["noisy"], Options(cutoff=10.0))
+    assert ident.settings["imu"].endswith("in frame base: the base's angular motion and linear "
+                                          "acceleration")  # fmt: skip
+    assert any("taken to sit at the base frame 'base'" in w and "--imu-frame" in w
+               for w in ident.warnings)  # fmt: skip

@@ -377,6 +377,11 @@ def identify_legged(
         "estimate": test.rms(theta_hat),
         "identified": test.rms(theta),
     }
+    if options.imu_frame is None and any(r.imu for r in raws + helds):
+        warnings.append(
+            f"the logs' IMU is taken to sit at the base frame {model.base_name!r} (its origin "
+            "and axes): where it sits elsewhere, give its frame with --imu-frame FRAME"
+        )
     if options.total_mass is None and rows == "projected":
         warnings.append(
             "with contact flags only, the total mass is weakly determined: give it with "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -87,7 +87,8 @@ def evaluate_legged(identified, logs, options: Options | None = None, *, cutoff_
         identified: a `torchjfa.io.IdentifiedModel` of a `FloatingBaseModel` (``model.npz``
             of a floating-base identification, read with `torchjfa.io.read_identified`).
         logs: legged logs (paths or `torchjfa.data.LeggedLog` s).
-        options: the reading options (`Options.time_scale`, `Options.flat_contacts`).
+        options: the reading options (`Options.time_scale`, `Options.flat_contacts`, and
+            `Options.imu_frame`: the logs' IMU is used only where its frame is named).
         cutoff_hz: prepare at this cut-off, Hz (default: the model's).
 
     Raises:
@@ -102,6 +103,8 @@ def evaluate_legged(identified, logs, options: Options | None = None, *, cutoff_
     cutoff = float(cutoff_hz or identified.cutoff_hz)
     sources = list(logs) if isinstance(logs, list | tuple) else [logs]
     raws = [read_legged(s, model, options) for s in sources]
+    if options.imu_frame is None:  # no frame named: the base's motion from the pose
+        raws = [replace(r, imu={}) for r in raws]
     rows = "all" if choose_rows(raws, options) == "all" else "projected"
     flat = tuple(options.flat_contacts) if rows == "projected" else ()
     edge = edge_seconds(cutoff)
