@@ -5,7 +5,7 @@ logs give (`choose_rows`) and which options apply."""
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
 
@@ -15,6 +15,7 @@ import torch
 from ..data import BASE_POSE, LeggedLog, LogError, is_uniform, read_legged_log
 from ..dynamics import FloatingBaseModel
 from ._options import DEFAULT_JOINT_TERMS, IdentificationError, Options
+from ._read import gains_per_joint
 
 __all__ = [
     "check_legged_options",
@@ -110,7 +111,7 @@ def check_legged_options(options: Options) -> None:
 def read_legged(source, model: FloatingBaseModel, options: Options) -> LeggedLog:
     """A legged log, its joints in the model's order and its contact frames checked."""
     name = source if isinstance(source, str | os.PathLike) else "the log"
-    gains = _drive_gains(options.drive_gains, model)
+    gains = gains_per_joint(options.drive_gains, model.joint_names, LogError)
     if isinstance(source, LeggedLog):
         if gains is not None:
             raise LogError(
@@ -169,19 +170,6 @@ def _imu_frame(log: LeggedLog, model: FloatingBaseModel, options: Options, name)
     except ValueError as exc:
         raise LogError(f"{name}: --imu-frame {frame}: {exc}") from None
     log.info.update(imu_frame=frame, imu_pose=pose, gravity=model.gravity.tolist())
-
-
-def _drive_gains(gains, model: FloatingBaseModel) -> dict[str, float] | None:
-    """``options.drive_gains`` per joint name (a sequence in the model's joint order)."""
-    if gains is None or isinstance(gains, Mapping):
-        return None if gains is None else {str(k): float(v) for k, v in gains.items()}
-    gains = list(gains)
-    if len(gains) != model.n_dof:
-        raise LogError(
-            f"{len(gains)} drive gains for the {model.n_dof} joints "
-            f"{', '.join(model.joint_names)}: give one per joint in this order, or joint=G,..."
-        )
-    return {j: float(g) for j, g in zip(model.joint_names, gains, strict=True)}
 
 
 def choose_rows(logs: Sequence[LeggedLog], options: Options) -> str:

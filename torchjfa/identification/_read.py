@@ -181,17 +181,8 @@ def _reading(options: Options, model: RigidBodyModel) -> dict:
         kw["time_scale"] = options.time_scale
     if options.topic is not None or options.effort != "torque":
         kw["topic"], kw["effort"] = options.topic, options.effort
-    gains = options.drive_gains
+    gains = gains_per_joint(options.drive_gains, model.joint_names)
     if gains is not None:
-        if not isinstance(gains, Mapping):
-            gains = list(gains)
-            if len(gains) != model.n_dof:
-                raise IdentificationError(
-                    f"{len(gains)} drive gains for the {model.n_dof} joints "
-                    f"{', '.join(model.joint_names)}: give one per joint in this order, or "
-                    "joint=G,..."
-                )
-            gains = dict(zip(model.joint_names, gains, strict=True))
         motors = () if model.transmission is None else model.transmission.motors
         unknown = sorted(set(gains) - set(model.joint_names) - set(motors))
         if unknown:
@@ -199,8 +190,26 @@ def _reading(options: Options, model: RigidBodyModel) -> dict:
                 f"drive gains for {unknown}, which are not joints of the model "
                 f"({', '.join(model.joint_names)})" + (" or motors" if motors else "")
             )
-        kw["drive_gains"] = {k: float(v) for k, v in gains.items()}
+        kw["drive_gains"] = gains
     return kw
+
+
+def gains_per_joint(
+    gains, joint_names: Sequence[str], error: type[Exception] = IdentificationError
+):
+    """``Options.drive_gains`` as name -> N m/A (a sequence is in ``joint_names``' order), or
+    None; ``error`` on a sequence of another length."""
+    if gains is None:
+        return None
+    if not isinstance(gains, Mapping):
+        gains = list(gains)
+        if len(gains) != len(joint_names):
+            raise error(
+                f"{len(gains)} drive gains for the {len(joint_names)} joints "
+                f"{', '.join(joint_names)}: give one per joint in this order, or joint=G,..."
+            )
+        gains = dict(zip(joint_names, gains, strict=True))
+    return {str(k): float(v) for k, v in gains.items()}
 
 
 def enough(n_samples: int, model: RigidBodyModel, where: str) -> None:
