@@ -388,26 +388,27 @@ def prepare_legged(
     else:
         vel = differentiate(t, log.v, **kw)
         v, a = vel.value.numpy(), vel.first.numpy()
-    if log.imu:
-        v, a = _imu_motion(log, quat_f, v, a, imu_pose, gravity, kw)
+    sensed = {k: differentiate(t, x, **kw) for k, x in log.imu.items()}
+    if sensed:
+        v, a = _imu_motion(sensed, quat_f, v, a, imu_pose, gravity)
     q = np.column_stack([pos.value.numpy(), quat_f, joints.value.numpy()])
     tau = None if log.tau is None else differentiate(t, log.tau, **kw).value.numpy()
     wrench = {k: differentiate(t, w_, **kw).value.numpy() for k, w_ in log.wrench.items()}
-    imu = {k: differentiate(t, x, **kw).value.numpy() for k, x in log.imu.items()}
+    imu = {k: d.value.numpy() for k, d in sensed.items()}
     info = {**log.info, "cutoff_hz": cutoff_hz}
     return replace(log, q=q, v=v, a=a, tau=tau, wrench=wrench, info=info, imu=imu)
 
 
-def _imu_motion(log: LeggedLog, quat, v, a, pose, gravity, kw):
-    """``(v, a)`` with the base's angular velocity and accelerations from the IMU (see
-    `prepare_legged`)."""
+def _imu_motion(sensed: dict, quat, v, a, pose, gravity):
+    """``(v, a)`` with the base's angular velocity and accelerations from the IMU's filtered
+    signals ``sensed`` (`differentiate`'s, in the IMU's axes; see `prepare_legged`)."""
     R, p = (np.eye(3), np.zeros(3)) if pose is None else (np.asarray(pose[0]), np.asarray(pose[1]))
-    gyro = differentiate(log.t, log.imu["w"] @ R.T, **kw)
-    w, dw = gyro.value.numpy(), gyro.first.numpy()
+    # the filter and the derivative are linear: turned into base axes after them
+    w, dw = sensed["w"].value.numpy() @ R.T, sensed["w"].first.numpy() @ R.T
     v, a = v.copy(), a.copy()
     v[:, 3:6], a[:, 3:6] = w, dw
-    if "a" in log.imu:
-        f = differentiate(log.t, log.imu["a"] @ R.T, **kw).value.numpy()
+    if "a" in sensed:
+        f = sensed["a"].value.numpy() @ R.T
         g = _rotate_to_base(quat, np.broadcast_to(np.asarray(gravity, float), f.shape).copy())
         origin = f + g - np.cross(dw, p) - np.cross(w, np.cross(w, p))
         a[:, :3] = origin - np.cross(w, v[:, :3])
