@@ -418,14 +418,20 @@ def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, pr
         "description_prior": prior_how,
         "total_mass": "none" if options.total_mass is None else f"{options.total_mass:g} kg",
         "drive_gains": _gains_text(raws),
-        "imu": (
-            f"gyroscope{' and accelerometer' if 'a' in raws[0].imu else ''} in frame "
-            f"{raws[0].info['imu_frame']}: the base's angular motion"
-            + (" and linear acceleration" if "a" in raws[0].imu else "")
-            if raws[0].imu
-            else "none (the base's motion differentiated from its pose)"
-        ),
+        "imu": _imu_text(raws[0]),
     }
+
+
+def _imu_text(raw) -> str:
+    """What the log's IMU gave the base's motion, or that it has none."""
+    if not raw.imu:
+        return "none (the base's motion differentiated from its pose)"
+    if "a" not in raw.imu:
+        return f"gyroscope in frame {raw.info['imu_frame']}: the base's angular motion"
+    return (
+        f"gyroscope and accelerometer in frame {raw.info['imu_frame']}: the base's angular "
+        "motion and linear acceleration"
+    )
 
 
 def _gains_text(raws) -> str:
