@@ -205,6 +205,13 @@ def test_an_exported_mjcf_has_collision_meshes_and_motors_that_replay_the_model(
     model.write_mjcf(theta, tmp_path / "elsewhere.xml")
     mj = mujoco.MjModel.from_xml_path(str(tmp_path / "elsewhere.xml"))
     assert mj.nmesh > 0 and mj.ngeom >= mj.nmesh
+    # every <visual> and <collision> of the URDF (all STL meshes here) is a geom: the visuals
+    # in group 1 and in no contact, the collisions colliding
+    urdf = ET.parse(path).getroot()
+    n_visual, n_collision = (len(urdf.findall(f"link/{tag}")) for tag in ("visual", "collision"))
+    touches = (mj.geom_contype != 0) | (mj.geom_conaffinity != 0)
+    assert n_visual > 0 and int((~touches & (mj.geom_group == 1)).sum()) == n_visual
+    assert int(touches.sum()) == n_collision
     assert mj.nu == model.n_dof and np.all(mj.actuator_gear[:, 0] == 1.0)
     order = [mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
     assert [int(mj.actuator_trnid[k, 0]) for k in range(mj.nu)] == order

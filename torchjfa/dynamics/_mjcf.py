@@ -262,10 +262,11 @@ def mjcf_from_urdf(text: str, *, source_path: str | None = None, export: bool = 
     ``(0, 0, -9.81)`` m/s^2, no geometry (visuals and collisions are dropped, so that no mesh
     needs to be found).
 
-    With ``export``, what a simulation needs is kept: each link's ``<collision>`` geometry
-    (primitives, and meshes that MuJoCo reads, STL, OBJ or MSH, found from ``source_path``
-    as `torchjfa.dynamics._urdf.resolve_mesh` finds them and named by absolute paths; the
-    others left out), the bodies' masses from the inertials alone, and a torque motor per
+    With ``export``, what a simulation needs is kept: each link's ``<collision>`` and
+    ``<visual>`` geometry (primitives, and meshes that MuJoCo reads, STL, OBJ or MSH, found
+    from ``source_path`` as `torchjfa.dynamics._urdf.resolve_mesh` finds them and named by
+    absolute paths; the others left out; visuals as MuJoCo's importer makes them, geoms that
+    take part in no contact), the bodies' masses from the inertials alone, and a torque motor per
     joint (gear 1, its control range the URDF's ``<limit effort>`` where it gives one).
 
     Raises:
@@ -279,7 +280,8 @@ def mjcf_from_urdf(text: str, *, source_path: str | None = None, export: bool = 
     keep, extra, effort = (), {}, {}
     if export:
         mujoco_collisions(root, source_path)
-        keep, extra = ("collision",), {"inertiafromgeom": "false", "strippath": "false"}
+        keep = ("collision", "visual")
+        extra = {"inertiafromgeom": "false", "strippath": "false", "discardvisual": "false"}
         for joint in root.iter("joint"):
             limit = joint.find("limit")
             with contextlib.suppress(TypeError, ValueError):
@@ -303,15 +305,16 @@ _MUJOCO_MESHES = (".stl", ".obj", ".msh")
 
 
 def mujoco_collisions(root, source_path: str | None) -> list[str]:
-    """A parsed URDF's ``<collision>`` meshes made readable by MuJoCo (``root`` changed in
-    place): each mesh file found (`torchjfa.dynamics._urdf.resolve_mesh`) named by its absolute
-    path, each collision whose mesh is not found or not in a format MuJoCo reads (STL, OBJ,
-    MSH) removed. Returns the removed ones, ``"link: filename"``."""
+    """A parsed URDF's ``<collision>`` and ``<visual>`` meshes made readable by MuJoCo
+    (``root`` changed in place): each mesh file found (`torchjfa.dynamics._urdf.resolve_mesh`)
+    named by its absolute path, each collision or visual whose mesh is not found or not in a
+    format MuJoCo reads (STL, OBJ, MSH; a visual's COLLADA, for one) removed. Returns the
+    removed ones, ``"link: filename"``."""
     from ._urdf import resolve_mesh
 
     removed = []
     for link in root.iter("link"):
-        for col in link.findall("collision"):
+        for col in link.findall("collision") + link.findall("visual"):
             mesh = col.find("geometry/mesh")
             if mesh is None:
                 continue
