@@ -3,6 +3,7 @@ with measured forces (with and without the IMU) beats least squares on held-out 
 every body consistent."""
 
 import importlib.util
+import math
 from pathlib import Path
 
 import pytest
@@ -28,3 +29,20 @@ def test_sim_legged_smoke(capsys):
         ours = rows[(kind, "torchjfa")]
         assert float(ours[2]) < 1.0 and ours[4] == "yes"  # ratio to the reference; consistent
     assert rows[("flags", "torchjfa")][4] == "yes" and rows[("flags + IMU", "torchjfa")][4] == "yes"
+
+
+def test_sim_legged_estimators_smoke(capsys):
+    """The estimators' comparison runs: least squares and Bayesian JFA (given the propagated
+    noise), each with forces and with flags, one row each with finite figures."""
+    erd_path("go2_description/urdf/go2.urdf")
+    path = SCRIPT.with_name("sim_legged_estimators.py")
+    spec = importlib.util.spec_from_file_location("sim_legged_estimators", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--smoke"]) == 0
+    rows = [ln.split() for ln in capsys.readouterr().out.splitlines() if ln.startswith("x3 ")]
+    assert [(r[1], r[2]) for r in rows] == [
+        ("forces", "ols"), ("forces", "bayes-jfa"), ("flags", "ols"), ("flags", "bayes-jfa"),
+    ]  # fmt: skip
+    for r in rows:
+        assert all(math.isfinite(float(x.rstrip("%"))) for x in r[3:])

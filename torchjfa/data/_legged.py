@@ -328,6 +328,15 @@ def _rotate_to_base(quat: np.ndarray, x: np.ndarray) -> np.ndarray:
     return _quat_mul(_quat_mul(conj, xq), quat)[:, :3]
 
 
+def continuous_quaternion(quat: np.ndarray) -> np.ndarray:
+    """``(T, 4)`` unit quaternions with their signs made continuous (``q`` and ``-q`` are one
+    orientation): a copy, each sample's sign flipped where it points away from the last."""
+    quat = np.array(quat, dtype=float)
+    flip = np.cumsum(np.r_[0, (quat[1:] * quat[:-1]).sum(1) < 0]) % 2 == 1
+    quat[flip] *= -1.0
+    return quat
+
+
 def prepare_legged(
     log: LeggedLog,
     *,
@@ -369,9 +378,7 @@ def prepare_legged(
     """
     kw = {"method": method, "cutoff_hz": cutoff_hz}
     t = log.t
-    quat = log.q[:, 3:7].copy()
-    flip = np.cumsum(np.r_[0, (quat[1:] * quat[:-1]).sum(1) < 0]) % 2 == 1
-    quat[flip] *= -1.0
+    quat = continuous_quaternion(log.q[:, 3:7])
     pos = differentiate(t, log.q[:, :3], **kw)
     rot = differentiate(t, quat, **kw)
     joints = differentiate(t, log.q[:, 7:], **kw)

@@ -30,7 +30,7 @@ from scipy import stats
 from ._log import JointLog
 from ._schema import LogError
 
-__all__ = ["SignalNoise", "signal_noise", "NOISE_SIGNALS"]
+__all__ = ["SignalNoise", "signal_noise", "floor_variance", "NOISE_SIGNALS"]
 
 #: the raw signals whose noise is estimated, with their units
 NOISE_SIGNALS = {"q": "rad", "qd": "rad/s", "tau": "N m"}
@@ -120,28 +120,51 @@ def signal_noise(
         raise LogError(f"band_hz must lie in (0, {0.5 * fs:.6g}) Hz, got {band_hz}")
     if not threshold > 1.0:
         raise LogError(f"threshold must be above 1, got {threshold}")
-    bias = _median_bias(segment, n)
     variance, band = {}, {}
     for name in NOISE_SIGNALS:
         x = getattr(log, name)
         if x is None:
             continue
-        f, S = _signal.welch(x.numpy(), fs=fs, nperseg=segment, axis=0)
-        f, S = f[1:-1], S[1:-1]  # neither the mean nor the (unscaled) Nyquist bin
-        var, lo = np.empty(S.shape[1]), np.empty(S.shape[1])
-        for j in range(S.shape[1]):
-            start = _band_start(f, S[:, j], band_hz, threshold)
-            if f.shape[0] - start < 4:
-                raise LogError(
-                    f"{log.source}: the spectrum of {name} of joint {log.joint_names[j]} does "
-                    f"not flatten below the Nyquist frequency ({0.5 * fs:.6g} Hz), so its noise "
-                    "floor cannot be read (give band_hz, or a log sampled faster)"
-                )
-            var[j] = np.median(S[start:, j]) / bias * 0.5 * fs
-            lo[j] = f[start]
+        var, lo = floor_variance(x.numpy(), fs, segment, band_hz, threshold)
+        if np.isnan(var).any():
+            joint = log.joint_names[int(np.flatnonzero(np.isnan(var))[0])]
+            raise LogError(f"{log.source}: the spectrum of {name} of joint {joint} "
+                           f"{NO_FLOOR.format(nyquist=0.5 * fs)}")  # fmt: skip
         variance[name] = torch.from_numpy(var)
         band[name] = torch.from_numpy(lo)
     return SignalNoise(variance, band, float(fs), segment, band_hz is None)
+
+
+#: the end of the error for a signal whose noise floor cannot be read
+NO_FLOOR = (
+    "does not flatten below the Nyquist frequency ({nyquist:.6g} Hz), so its noise floor "
+    "cannot be read (give band_hz, or a log sampled faster)"
+)
+
+
+def floor_variance(
+    x: np.ndarray, fs: float, segment: int, band_hz: float | None = None, threshold: float = 2.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The white-noise variance of each column of ``x`` (``(n, k)`` samples at ``fs`` Hz) from
+    its Welch spectrum's floor, as `signal_noise` reads it: ``(variance (k,), band edge (k,)
+    Hz)``.
+
+    A column whose noise band has fewer than 4 bins (its spectrum does not flatten below the
+    Nyquist frequency) gets NaN.
+    """
+    x = np.asarray(x, dtype=float).reshape(len(x), -1)
+    bias = _median_bias(segment, x.shape[0])
+    f, S = _signal.welch(x, fs=fs, nperseg=segment, axis=0)
+    f, S = f[1:-1], S[1:-1]  # neither the mean nor the (unscaled) Nyquist bin
+    var, lo = np.empty(S.shape[1]), np.empty(S.shape[1])
+    for j in range(S.shape[1]):
+        start = _band_start(f, S[:, j], band_hz, threshold)
+        if f.shape[0] - start < 4:
+            var[j], lo[j] = np.nan, np.nan
+            continue
+        var[j] = np.median(S[start:, j]) / bias * 0.5 * fs
+        lo[j] = f[start]
+    return var, lo
 
 
 def _band_start(f: np.ndarray, S: np.ndarray, band_hz: float | None, threshold: float) -> int:

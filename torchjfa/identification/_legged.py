@@ -18,7 +18,9 @@ The stages, each chosen from what the logs hold:
 6. the weights: each row (the base's six, each joint's) by its inverse residual variance
    from a first least-squares fit (``Options.weighting="residual"``);
 7. the estimator (`Options.estimator`) on the weighted rows, with a constraint row for
-   `Options.total_mass`;
+   `Options.total_mass`; an estimator that models the inputs' noise (Bayesian JFA) is given
+   the sensors' noise propagated through the preparation into each column
+   (`propagated_legged_noise`, ``input_noise="auto"``);
 8. the projection onto physically consistent parameters over every body, the base's
    included (`consistent_floating`), pulled towards the description with a weight chosen
    by cross-validation over five blocks of the training data (``description_prior="auto"``);
@@ -27,11 +29,12 @@ The stages, each chosen from what the logs hold:
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 import warnings as _warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +54,7 @@ from ..physical import ConsistencyReport
 from ..stats import Moments
 from ._contacts import RowMoments, _Padded, consistent_floating, row_moments
 from ._fit import make_estimator
+from ._legged_noise import legged_input_noise, propagated_legged_noise
 from ._legged_read import (
     check_legged_options,
     choose_rows,
@@ -59,6 +63,7 @@ from ._legged_read import (
     load_floating,
     read_legged,
 )
+from ._noise import takes_input_noise
 from ._options import IdentificationError, IdentificationWarning, Options
 from ._prior import PRIOR_BLOCKS, choose_prior_weight, pick_prior_weight
 
@@ -359,7 +364,10 @@ def identify_legged(
         started = time.perf_counter()
         weights = _residual_weights(train, options)
         moments = _weighted(model, train, weights, options)
-        estimator = make_estimator(options).fit_moments(moments)
+        noise, noise_how, more = _input_noise(model, raws, ends, helds, cutoff, options, rows,
+                                              flat, weights, moments.n / train.combined(weights).n)  # fmt: skip
+        warnings += more
+        estimator = make_estimator(options, noise).fit_moments(moments)
         theta_hat = estimator.coef_.detach().to(torch.float64).cpu()
         bar.update(1)
         bar.set_description_str(f"identify: {stages[4]}")
@@ -388,7 +396,8 @@ def identify_legged(
             "--total-mass where it is known (a scale), or log the contact forces"
         )
     sources = (raws, helds, estimator, cutoff, how, prior_how)
-    record = {**_record(robot, model, rows, options, *sources), **dict(settings or {})}
+    record = {**_record(robot, model, rows, options, *sources), "input_noise": noise_how,
+              **dict(settings or {})}  # fmt: skip
     out = LeggedIdentification(
         model, rows, labels, theta_hat, theta, consistency, held_out, weights, cutoff, how,
         train.n_samples, test.n_samples, record, warnings, seconds,
@@ -396,6 +405,24 @@ def identify_legged(
     for line in out.warnings:
         _warnings.warn(line, IdentificationWarning, stacklevel=2)
     return out
+
+
+def _input_noise(model, raws, ends, helds, cutoff, options, rows, flat, weights, scale):
+    """`legged_input_noise` of the training parts (``scale``: the moments' weight over the
+    rows', which the total mass's constraint row raises)."""
+    edge = edge_seconds(cutoff)
+    spans = [(r, float(r.t[0]) + edge, float(r.t[-1]) - edge if helds else end)
+             for r, end in zip(raws, ends, strict=True)]  # fmt: skip
+
+    def propagate():
+        noise = propagated_legged_noise(
+            model, spans, lambda raw: prepared_log(raw, cutoff, options.filter),
+            rows=rows, flat=flat, weights=weights,
+        )  # fmt: skip
+        return replace(noise, input_noise=noise.input_noise / scale,
+                       column_power=noise.column_power / scale)  # fmt: skip
+
+    return legged_input_noise(model, options, takes_input_noise(options.estimator), propagate)
 
 
 def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, prior_how) -> dict:
@@ -486,7 +513,12 @@ def _prior_weight(model, blocks, weights, estimator, options: Options):
         return LEGGED_PRIOR_WEIGHT, f"{LEGGED_PRIOR_WEIGHT:g} (too little data to choose)"
     padded = _Padded(model)
     folds = [padded.pad_moments(_weighted(model, b, weights, options)) for b in blocks]
-    choice = choose_prior_weight(estimator, folds, padded, None, options.parametrization, {})
+    noise = getattr(estimator, "input_noise", None)
+    if noise is not None:  # the given input noise, padded as the moments are
+        noise = padded.pad(torch.as_tensor(noise, dtype=torch.float64))
+        estimator = copy.deepcopy(estimator)
+        estimator.input_noise = noise
+    choice = choose_prior_weight(estimator, folds, padded, noise, options.parametrization, {})
     weight = pick_prior_weight(choice)
     return weight, (
         f"{weight:g} (auto: of {', '.join(f'{c:g}' for c in choice)}, by cross-validation "

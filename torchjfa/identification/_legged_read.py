@@ -33,7 +33,7 @@ LEGGED_COULOMB_VELOCITY = 0.05
 _ARM_ONLY = (
     "columns", "drop_nan", "drop_outliers", "drop_cut_line", "topic", "effort",
     "velocity", "period", "skip_start", "decimate", "armature", "transmission",
-    "input_noise", "jackknife", "bias_correction", "parametrization", "projection_options",
+    "jackknife", "bias_correction", "parametrization", "projection_options",
 )  # fmt: skip
 
 

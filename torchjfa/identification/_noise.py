@@ -104,7 +104,7 @@ def choose_noise(model: RigidBodyModel, data, options: Options | None = None) ->
         # metric alone (OLS and the like) it predicts held-out torques of a real log worse
         # (docs/report.md)
         mode = "periods" if pnoise is not None else "learn"
-        if mode == "learn" and _takes_input_noise(options.estimator):
+        if mode == "learn" and takes_input_noise(options.estimator):
             mode = "propagated"
     if mode == "periods" and pnoise is None:
         raise IdentificationError(
@@ -156,7 +156,7 @@ def noise_vector(input_noise, d: int) -> torch.Tensor | None:
     return v
 
 
-def _takes_input_noise(estimator) -> bool:
+def takes_input_noise(estimator) -> bool:
     """Whether the estimator (a name, or an estimator given as it is) takes ``input_noise``."""
     from .. import estimators
 
@@ -220,7 +220,7 @@ def cap_period_noise(
     bad = (noise >= 0.5 * power) & (power > 1e-20 * power.max())  # not round-off columns
     if not bool(bad.any()):
         return pnoise, []
-    names = [model.layout.parameter_names[i] for i in bad.nonzero().flatten().tolist()]
+    names = [model.parameter_names[i] for i in bad.nonzero().flatten().tolist()]
     shown = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
     capped = replace(pnoise, input_noise=torch.where(bad, 0.5 * power, noise))
     return capped, [

@@ -187,7 +187,9 @@ class Options:
             (insist on it), ``"propagated"`` (the raw log's sensor noise, from its spectrum,
             pushed through the preparation and the regressor:
             `torchjfa.data.propagated_noise`), ``"learn"`` (none given: Bayesian JFA learns
-            it), or ``(n_params,)`` variances of the (weighted) regressor columns.
+            it), or ``(n_params,)`` variances of the (weighted) regressor columns. For a
+            floating base (no periods), ``"auto"`` propagates the base pose's, the joints'
+            and the IMU's noise for an estimator that takes it.
         jackknife: blocks of the delete-one-block jackknife spread (0: none).
         bias_correction: refits on the raw log with re-drawn sensor noise for the
             errors-in-variables bias of the unconstrained estimate, subtracted before the
@@ -398,7 +400,8 @@ class Options:
         "projection's metric): the spread between excitation periods ('periods'), the log's "
         "sensor noise from its spectrum propagated through the preparation ('propagated'), "
         "learned ('learn'), or 'auto': periods when the training data hold two or more, else "
-        "propagated for an estimator that takes an input noise",
+        "propagated for an estimator that takes an input noise (for a floating base, the "
+        "base pose's and IMU's noise too)",
     )
     jackknife: int = option(
         20, group="estimator", help="blocks for the jackknife spread of the parameters, 0: none"
