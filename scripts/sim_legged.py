@@ -14,6 +14,10 @@ Each kind of contact information is fitted twice: with the base's motion differe
 the pose, and with it from the IMU on the Go2's ``imu`` link (``--imu-frame imu``); the
 reference is prepared the same way.
 
+A third training log has the robot step in place (``step=0.05``: each foot in turn leaves the
+ground for a moment, the sway smaller), identified from contact flags alone: with a foot in
+the air the weight is no longer left wholly to the unknown contact forces.
+
 Two kinds of contact information, each with two fits:
 
 * forces (the feet's measured wrenches): every row, judged by the held-out joint torques' RMS;
@@ -57,6 +61,8 @@ STANCE = {f"{leg}_{j}_joint": v for leg in ("FL", "FR", "RL", "RR") for j, v in
           (("thigh", 0.8), ("calf", -1.5))}  # fmt: skip
 #: the smoke run's cut-off (its 8 s are too short to choose one)
 CUTOFF_HZ = 10.0
+#: the stepping log's foot lift, m (`simulate_legged`'s ``step``)
+STEP = 0.05
 
 
 class PinocchioRows:
@@ -130,6 +136,8 @@ def run(seconds: float, smoke: bool) -> int:
     train = simulate_legged(path, FEET, STANCE, seconds=seconds, perturb=0.2, seed=1, imu="imu")
     test = simulate_legged(path, FEET, STANCE, seconds=5.0, perturb=0.2, seed=2)
     noisy = train.noisy(seed=0)
+    steps = simulate_legged(path, FEET, STANCE, seconds=seconds, perturb=0.2, seed=1, step=STEP)
+    stepping = steps.noisy(seed=0)
     print(f"simulated in {time.perf_counter() - start:.1f} s: {len(train.t)} training samples, "
           f"{len(test.t)} held out")  # fmt: skip
     truth = train.theta.reshape(-1, 10)[:, 0]
@@ -139,8 +147,10 @@ def run(seconds: float, smoke: bool) -> int:
           f"{'total mass error':>17s} {'consistent':>11s}")  # fmt: skip
     options = Options(cutoff=CUTOFF_HZ) if smoke else Options()
     imu_pose = bare.base_frame("imu")
-    for kind, imu in (("forces", False), ("flags", False), ("forces", True), ("flags", True)):
-        log = noisy if kind == "forces" else replace(noisy, wrench={})
+    for kind, imu, moves in (("forces", False, noisy), ("flags", False, noisy),
+                             ("forces", True, noisy), ("flags", True, noisy),
+                             ("flags", False, stepping)):  # fmt: skip
+        log = moves if kind == "forces" else replace(moves, wrench={})
         log = log if imu else replace(log, imu={})
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IdentificationWarning)
@@ -149,7 +159,7 @@ def run(seconds: float, smoke: bool) -> int:
         keep = (log.t >= log.t[0] + edge) & (log.t <= log.t[-1] - edge)
         pose = {"imu_pose": imu_pose} if imu else {}
         prepared = prepare_legged(log, cutoff_hz=ident.cutoff_hz, **pose).select(keep)
-        label = f"{kind} + IMU" if imu else kind
+        label = f"{kind} + IMU" if imu else (f"{kind}, stepping" if moves is stepping else kind)
         A, b = pinocchio.rows(prepared, kind)
         reference = np.linalg.lstsq(A, b, rcond=None)[0]
         base = judge(bare, test, kind)(reference)

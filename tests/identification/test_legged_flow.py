@@ -207,6 +207,25 @@ def test_simulate_then_identify_on_the_command_line(go2, tmp_path, capsys):
                "--out", str(tmp_path / "x.csv")])  # fmt: skip
     assert rc == 2
     assert "not for a floating-base robot" in capsys.readouterr().err
+    rc = main(["simulate", go2["path"], "--feet", ",".join(GO2_FEET), "--stance", stance,
+               "--step", "-0.05", "--out", str(tmp_path / "x.csv")])  # fmt: skip
+    assert rc == 2
+    assert "step must be a finite height >= 0 m" in capsys.readouterr().err
+
+
+def test_simulate_steps_in_place_on_the_command_line(tmp_path):
+    """``--step``: the feet leave the ground in turn (FL, then FR in the first 4 s), the log's
+    flags say so."""
+    log = tmp_path / "steps.csv"
+    stance = ",".join(f"{j}={v}" for j, v in GO2_STANCE.items())
+    path = erd_path("go2_description/urdf/go2.urdf")
+    rc = main(["simulate", path, "--feet", ",".join(GO2_FEET), "--stance", stance,
+               "--seconds", "4", "--rate", "100", "--step", "0.05", "--out", str(log),
+               "--quiet"])  # fmt: skip
+    assert rc == 0
+    table = np.genfromtxt(log, delimiter=",", names=True)
+    up = {f: float((table[f"contact_{f}"] == 0).mean()) for f in GO2_FEET}
+    assert up["FL_foot"] > 0.01 and up["FR_foot"] > 0.01  # the slots of these two
 
 
 #: a Unitree G1 standing on flat feet (four corner spheres each), knees bent, its waist and

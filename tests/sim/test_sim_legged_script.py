@@ -1,4 +1,4 @@
-"""The smoke run of scripts/sim_legged.py: it runs, prints its eight fits, and the library's fit
+"""The smoke run of scripts/sim_legged.py: it runs, prints its ten fits, and the library's fit
 with measured forces (with and without the IMU) beats least squares on held-out torques with
 every body consistent."""
 
@@ -23,12 +23,13 @@ def test_sim_legged_smoke(capsys):
     # a row: its contact information (20 columns), the fit, RMS, ratio, mass error, consistent
     rows = {(ln[:20].strip(), ln[20:].split()[0]): ln[20:].split() for ln in lines
             if ln.startswith(("forces", "flags"))}  # fmt: skip
-    kinds = ("forces", "flags", "forces + IMU", "flags + IMU")
+    kinds = ("forces", "flags", "forces + IMU", "flags + IMU", "flags, stepping")
     assert set(rows) == {(k, f) for k in kinds for f in ("reference", "torchjfa")}
     for kind in ("forces", "forces + IMU"):
         ours = rows[(kind, "torchjfa")]
         assert float(ours[2]) < 1.0 and ours[4] == "yes"  # ratio to the reference; consistent
-    assert rows[("flags", "torchjfa")][4] == "yes" and rows[("flags + IMU", "torchjfa")][4] == "yes"
+    for kind in ("flags", "flags + IMU", "flags, stepping"):
+        assert rows[(kind, "torchjfa")][4] == "yes"
 
 
 def test_sim_legged_estimators_smoke(capsys):

@@ -119,11 +119,13 @@ def add_simulate(sub) -> argparse.ArgumentParser:
 def _add_legged(p: argparse.ArgumentParser) -> None:
     """The options of a floating-base robot's simulation (`torchjfa.sim.simulate_legged`)."""
     from ..sim import simulate_legged
+    from ..sim._legged import STEP_SWAY, SWAY
 
     g = p.add_argument_group(
         "a floating-base robot (legged robot, humanoid)",
         "With --feet, ROBOT is a floating-base URDF (its root link the base) simulated "
-        "standing on a floor and swaying its body under joint PD control; the log holds "
+        "standing on a floor and swaying its body under joint PD control (with --step, "
+        "stepping in place); the log holds "
         "the base pose, joint positions and torques, contact_<foot> flags and the ground's "
         "forces and moments on each foot (f_<foot>_x.., m_<foot>_x..), with sensor noise.",
     )
@@ -150,9 +152,14 @@ def _add_legged(p: argparse.ArgumentParser) -> None:
         type=_amplitude,
         default=default_of(simulate_legged, "amplitude"),
         metavar="RAD|J=RAD,...",
-        help="each joint's sway about the stance, rad (hips 40 %% of it), or joint=rad for "
-        "the joints that move (the others hold the stance: a humanoid's legs)",
+        help="each joint's sway about the stance, rad (hips 40 %% of it; default "
+        f"{SWAY:g}), or joint=rad for the joints that move (the others hold the stance: a "
+        "humanoid's legs)",
     )
+    g.add_argument("--step", type=float, default=0.0, metavar="M",
+                   help="step in place (point feet): lift each foot in turn by M metres while "
+                   "the body leans away from it; the sway's default drops to "
+                   f"{STEP_SWAY:g} rad")  # fmt: skip
     g.add_argument("--foot-size", type=numbers, default=None, metavar="L,W",
                    help="flat feet: a sphere at each corner of an L x W m rectangle about each "
                    "foot frame (a humanoid's soles); default point feet")  # fmt: skip
@@ -224,7 +231,7 @@ def _simulate_legged(args) -> int:
             rate=args.rate or 200.0, perturb=args.perturb, truth_seed=args.truth_seed,
             seed=args.seed, progress=not args.quiet, amplitude=args.amplitude,
             foot_size=_pair(args.foot_size, "--foot-size"), gains=_pair(args.gains, "--gains"),
-            imu=args.imu,
+            imu=args.imu, step=args.step,
         )  # fmt: skip
     except (ValueError, OSError) as exc:
         raise usage(exc) from None

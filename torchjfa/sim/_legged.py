@@ -3,7 +3,9 @@
 `simulate_legged` compiles a floating-base URDF (example-robot-data's quadrupeds and humanoids,
 or your own) with a free joint on its root link, a sphere at each foot frame and a floor, and
 holds a standing pose with joint PD control while every joint follows a slow sum of sines
-around it; the feet stay on the ground (mostly) while the body sways. It records what a
+around it; the feet stay on the ground (mostly) while the body sways. With ``step``, a
+quadruped also steps in place: each foot in turn leaves the ground while the body leans away
+from it. It records what a
 legged robot's log holds, in the floating-base state convention of
 `torchjfa.dynamics.FloatingBaseModel`: the base pose and twist, joint positions, velocities
 and torques, which feet touch the ground, and the wrench each foot receives from it
@@ -44,6 +46,9 @@ LEGGED_NOISE = {
     "accelerometer": 0.05,
 }
 
+#: the joints' sway about the stance, rad (`simulate_legged`'s default amplitude), and with
+#: stepping
+SWAY, STEP_SWAY = 0.15, 0.05
 _TIMESTEP = 0.001  # s
 _KP, _KD = 100.0, 3.0  # N m/rad, N m s/rad: stiff enough to stand, soft enough to sway
 _RAMP = 2.0  # s over which the motion grows from the standing pose
@@ -215,7 +220,7 @@ def simulate_legged(
     *,
     seconds: float = 20.0,
     rate: float = 200.0,
-    amplitude: float | Mapping[str, float] = 0.15,
+    amplitude: float | Mapping[str, float] | None = None,
     foot_radius: float = 0.02,
     foot_size: tuple[float, float] | None = None,
     gains: tuple[float, float] = (_KP, _KD),
@@ -223,6 +228,7 @@ def simulate_legged(
     truth_seed: int = 0,
     seed: int = 0,
     imu: str | None = None,
+    step: float = 0.0,
     progress: bool = False,
 ) -> LeggedLog:
     """Simulate a legged robot standing and swaying its body (the module).
@@ -238,7 +244,7 @@ def simulate_legged(
         amplitude: each joint's motion about the stance, rad: a sum of two sines with random
             frequencies (0.2-0.8 Hz) and phases; hip joints (named ``*hip*``) move 40 % of it.
             Or joint -> amplitude, rad: the joints not named hold the stance (a humanoid's
-            legs, say).
+            legs, say). Default `SWAY` rad, `STEP_SWAY` with ``step``.
         foot_radius: m.
         foot_size: ``(length, width)``, m, of flat feet: a sphere at each corner of that
             rectangle, centred on the foot frame's origin in its x-y plane (a sole frame), so
@@ -254,6 +260,11 @@ def simulate_legged(
         imu: a link fixed to the base that carries an IMU: its gyroscope and accelerometer
             (MuJoCo's ``gyro`` and ``accelerometer`` sensors at the link's origin, in its
             axes) are recorded as ``imu`` (`torchjfa.data.IMU_COLUMNS`); None: no IMU.
+        step: stepping in place, for a robot on point feet: each foot in turn is lifted by
+            this height, m, over a slot of 2 s, while every leg leans the body away from it
+            (by 30 % of the foot's horizontal distance from the feet's centre), from the
+            feet's position Jacobians at the stance; 0: every foot stays down. A foot in the
+            air is what lets contact flags alone determine the total mass.
         progress: show a progress bar.
 
     Returns:
@@ -265,6 +276,10 @@ def simulate_legged(
     """
     if not seconds > 0 or not rate > 0 or rate > 1.0 / _TIMESTEP:
         raise ValueError(f"seconds must be > 0 and rate in (0, 1000] Hz, got {seconds}, {rate}")
+    if not 0.0 <= float(step) < float("inf"):
+        raise ValueError(f"step must be a finite height >= 0 m, got {step}")
+    if amplitude is None:
+        amplitude = STEP_SWAY if step else SWAY
     path = os.fspath(robot)
     model = FloatingBaseModel.from_urdf(path, friction=())
     unknown = sorted(set(stance) - set(model.joint_names))
@@ -299,6 +314,7 @@ def simulate_legged(
     else:
         amp = np.array([amplitude * (0.4 if "hip" in j else 1.0) for j in joints])
     kp, kd = _gains(model, q0, gains)
+    lifts = _lifts(model, q0, tuple(feet), float(step))
     foot_body = {mj.body(f).id: k for k, f in enumerate(feet)}
     every = max(1, round(1.0 / (rate * _TIMESTEP)))
     n_steps = round((_SETTLE + seconds) / _TIMESTEP)
@@ -311,7 +327,8 @@ def simulate_legged(
             wave = 0.6 * np.sin(2 * np.pi * freq[:, 0] * t + phase[:, 0]) + 0.4 * np.sin(
                 2 * np.pi * freq[:, 1] * t + phase[:, 1]
             )
-            data.ctrl[:] = kp * (q0 + ramp * amp * wave - data.qpos[qadr]) - kd * data.qvel[vadr]
+            target = q0 + ramp * amp * wave + _stepping(lifts, t - _SETTLE)
+            data.ctrl[:] = kp * (target - data.qpos[qadr]) - kd * data.qvel[vadr]
             mujoco.mj_step(mj, data)
             bar.update(1)
             if t < _SETTLE or step % every:
@@ -322,7 +339,7 @@ def simulate_legged(
             if data.qpos[2] < foot_radius:
                 raise ValueError(
                     f"the robot fell at t = {t - _SETTLE:.2f} s (base height {data.qpos[2]:.3f} m): "
-                    "lower the amplitude or check the stance"
+                    "lower the amplitude or the step, or check the stance"
                 )
     on, wrench, sensed = np.array(rec["on"]), np.array(rec["w"]), np.array(rec["imu"])
     return SimulatedLeggedLog(
@@ -338,6 +355,47 @@ def simulate_legged(
         imu={} if imu is None else {"w": sensed[:, :3], "a": sensed[:, 3:6]},
         theta=_theta(mj, model),
     )
+
+
+#: a stepping cycle: each foot in turn gets a slot of this many seconds: the body leans away
+#: from it, the foot lifts and comes down, and the body comes back
+_STEP_SLOT = 2.0
+#: how far the body leans away from the lifted foot, as a fraction of the foot's distance
+#: from the feet's centre
+_LEAN = 0.3
+
+
+def _lifts(model: FloatingBaseModel, q0: np.ndarray, feet: tuple[str, ...], height: float):
+    """``(len(feet), 2, n)`` joint offsets: for each foot, the lean of every leg that moves
+    the body away from it, and the lift of its own leg by ``height`` m, from the feet's
+    position Jacobians at the stance (least-squares inverse kinematics)."""
+    if height == 0.0:
+        return None
+    q = np.concatenate([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], q0])
+    J = model.frame_jacobian(q, list(feet)).numpy()[:, :3, 6:]  # (k, 3, n)
+    pos = model.joints.forward_kinematics(q0, list(feet))[..., :3, 3].numpy()
+    centre = pos.mean(0)
+    out = np.zeros((len(feet), 2, model.n_dof))
+    for k in range(len(feet)):
+        lean = _LEAN * (pos[k] - centre) * np.array([1.0, 1.0, 0.0])
+        for j in range(len(feet)):
+            # the body away from foot k is every stance foot towards it, relative to the body
+            out[k, 0] += np.linalg.pinv(J[j]) @ lean
+        out[k, 1] = np.linalg.pinv(J[k]) @ np.array([0.0, 0.0, height])
+    return out
+
+
+def _stepping(lifts, t: float) -> np.ndarray | float:
+    """The joint offset of the stepping cycle at time ``t`` (s, from the recording's start;
+    none before it): a slot per foot, the lean rising over its first 30 % and falling over its
+    last 30 %, the lift a bump over the 40 % between."""
+    if lifts is None or t < 0.0:
+        return 0.0
+    k = int(t // _STEP_SLOT) % len(lifts)
+    u = (t % _STEP_SLOT) / _STEP_SLOT
+    lean = min(1.0, u / 0.3) if u < 0.5 else max(0.0, 1.0 - (u - 0.7) / 0.3)
+    lift = np.sin(np.pi * (u - 0.3) / 0.4) ** 2 if 0.3 <= u <= 0.7 else 0.0
+    return lean * lifts[k, 0] + lift * lifts[k, 1]
 
 
 def _record(rec: dict, mj, data, base_id: int, qadr, vadr, foot_body) -> None:
