@@ -36,6 +36,7 @@ import warnings as _warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -54,11 +55,14 @@ from ..physical import ConsistencyReport
 from ..stats import Moments
 from ._contacts import RowMoments, _Padded, consistent_floating, row_moments
 from ._fit import make_estimator
+from ._legged_masses import DETERMINED_SPREAD, mass_index, mass_spread
 from ._legged_noise import legged_input_noise, propagated_legged_noise
 from ._legged_read import (
     check_legged_options,
     choose_rows,
     flat_frames,
+    gains_text,
+    imu_text,
     is_legged_log,
     load_floating,
     read_legged,
@@ -103,6 +107,11 @@ class LeggedIdentification:
         settings: the run's record (robot, logs, choices).
         warnings: what the user should know.
         seconds: the fit's wall time, s.
+        mass_spread: ``(n_bodies + 1,)`` each body's mass spread from the data alone, kg
+            (the base first, the total mass last; `mass_spread`: the jackknife over the
+            training blocks), or None.
+        mass_in_span: ``(n_bodies + 1,)`` whether each body's mass (and the total) lies in
+            the span of the training rows, or None.
     """
 
     model: FloatingBaseModel
@@ -120,6 +129,10 @@ class LeggedIdentification:
     settings: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    mass_spread: torch.Tensor | None = None
+    mass_in_span: torch.Tensor | None = None
+    #: a mass is determined where its spread is at most this fraction of it
+    determined_spread: ClassVar[float] = DETERMINED_SPREAD
 
     def masses(self, theta=None) -> dict[str, float]:
         """Body -> mass, kg (the base first), of ``theta`` (default the identified)."""
@@ -127,6 +140,22 @@ class LeggedIdentification:
         index = mass_index(self.model)
         names = (self.model.base_name, *self.model.joints.body_names)
         return {b: float(theta[i]) for b, i in zip(names, index.tolist(), strict=True)}
+
+    def determined(self) -> dict[str, bool]:
+        """Body (and ``"total"``, last) -> whether the data determine its mass: it lies in the
+        training rows' span and its spread is at most `determined_spread` of the identified
+        mass (`torchjfa.identification._legged_masses`: in a tree of revolute joints no
+        single body's mass is, the total mass can be). With contact flags only, never: the
+        weight is then inferred through the contact projection, whose bias (the filter
+        across each touchdown) the spread does not see, as simulation shows."""
+        masses = {**self.masses(), "total": self.total_mass}
+        if self.mass_spread is None or self.mass_in_span is None or self.rows == "projected":
+            return dict.fromkeys(masses, False)
+        return {
+            body: bool(ok) and float(sd) <= self.determined_spread * abs(m)
+            for (body, m), sd, ok in zip(masses.items(), self.mass_spread, self.mass_in_span,
+                                         strict=True)
+        }  # fmt: skip
 
     @property
     def total_mass(self) -> float:
@@ -174,12 +203,6 @@ ROW_TEXT = {
     "projected": "contact flags, the contact forces projected out",
     "base": "the six base rows alone, with the measured contact wrenches",
 }
-
-
-def mass_index(model: FloatingBaseModel) -> torch.Tensor:
-    """The positions of the bodies' masses in theta, the base's first."""
-    inertial, _ = model.joints.layout.split(torch.arange(model.joints.n_params))
-    return torch.cat([torch.tensor([0]), 10 + inertial[:, 0].long()])
 
 
 def prepared_log(raw: LeggedLog, cutoff_hz: float, method: str = "butterworth") -> LeggedLog:
@@ -363,6 +386,7 @@ def identify_legged(
         bar.set_description_str(f"identify: {stages[3]}")
         started = time.perf_counter()
         weights = _residual_weights(train, options)
+        spread, in_span = mass_spread(model, blocks, weights)
         moments = _weighted(model, train, weights, options)
         noise, noise_how, more = _input_noise(model, raws, ends, helds, cutoff, options, rows,
                                               flat, weights, moments.n / train.combined(weights).n)  # fmt: skip
@@ -400,7 +424,7 @@ def identify_legged(
               **dict(settings or {})}  # fmt: skip
     out = LeggedIdentification(
         model, rows, labels, theta_hat, theta, consistency, held_out, weights, cutoff, how,
-        train.n_samples, test.n_samples, record, warnings, seconds,
+        train.n_samples, test.n_samples, record, warnings, seconds, spread, in_span,
     )  # fmt: skip
     for line in out.warnings:
         _warnings.warn(line, IdentificationWarning, stacklevel=2)
@@ -444,29 +468,9 @@ def _record(robot, model, rows, options, raws, helds, estimator, cutoff, how, pr
         "weighting": options.weighting,
         "description_prior": prior_how,
         "total_mass": "none" if options.total_mass is None else f"{options.total_mass:g} kg",
-        "drive_gains": _gains_text(raws),
-        "imu": _imu_text(raws[0]),
+        "drive_gains": gains_text(raws),
+        "imu": imu_text(raws[0]),
     }
-
-
-def _imu_text(raw) -> str:
-    """What the log's IMU gave the base's motion, or that it has none."""
-    if not raw.imu:
-        return "none (the base's motion differentiated from its pose)"
-    if "a" not in raw.imu:
-        return f"gyroscope in frame {raw.info['imu_frame']}: the base's angular motion"
-    return (
-        f"gyroscope and accelerometer in frame {raw.info['imu_frame']}: the base's angular "
-        "motion and linear acceleration"
-    )
-
-
-def _gains_text(raws) -> str:
-    """The drive gains the logs' currents were read with, or that the logs hold torques."""
-    gains = raws[0].info.get("drive_gains")
-    if not gains:
-        return "none (the logs hold joint torques)"
-    return "motor currents times " + ", ".join(f"{j} {g:g}" for j, g in gains.items()) + " N m/A"
 
 
 def _pair(raw, cutoff, filter_, edge) -> tuple[LeggedLog, LeggedLog]:

@@ -202,3 +202,23 @@ def flat_frames(logs: Sequence[LeggedLog], options: Options) -> tuple[str, ...]:
     if unknown:
         raise IdentificationError(f"flat_contacts {unknown} are not contact frames of the logs")
     return tuple(options.flat_contacts)
+
+
+def imu_text(raw) -> str:
+    """What the log's IMU gave the base's motion, or that it has none."""
+    if not raw.imu:
+        return "none (the base's motion differentiated from its pose)"
+    if "a" not in raw.imu:
+        return f"gyroscope in frame {raw.info['imu_frame']}: the base's angular motion"
+    return (
+        f"gyroscope and accelerometer in frame {raw.info['imu_frame']}: the base's angular "
+        "motion and linear acceleration"
+    )
+
+
+def gains_text(raws) -> str:
+    """The drive gains the logs' currents were read with, or that the logs hold torques."""
+    gains = raws[0].info.get("drive_gains")
+    if not gains:
+        return "none (the logs hold joint torques)"
+    return "motor currents times " + ", ".join(f"{j} {g:g}" for j, g in gains.items()) + " N m/A"

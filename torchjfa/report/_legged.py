@@ -37,14 +37,32 @@ def _masses_table(ident) -> list[str]:
     desc = ident.masses(ident.model.nominal_theta)
     est = ident.masses(ident.theta_hat)
     got = ident.masses()
-    lines = ["| body | description, kg | estimate, kg | identified, kg | consistent |",
-             "|---|---:|---:|---:|:---:|"]  # fmt: skip
+    determined = ident.determined()
+    spread = ident.mass_spread
+    lines = [
+        "Spread: the jackknife over the training blocks of the data's own estimate; a mass is "
+        "determined where it lies in the span of the training rows and its spread is at most "
+        f"{ident.determined_spread:.0%} of it. Across a revolute joint, mass at the joint's "
+        "axis can move between the two bodies without changing any torque or force, so no "
+        "single body's mass is determined: the description prior holds them, and the data "
+        "determine the total where they see the weight (measured contact forces; with contact "
+        "flags only, the spread misses the bias of the contact projection, so nothing is "
+        "called determined).",
+        "",
+        "| body | description, kg | estimate, kg | identified, kg | spread, kg | determined "
+        "| consistent |",
+        "|---|---:|---:|---:|---:|:---:|:---:|",
+    ]
     ok = None if ident.consistency is None else ident.consistency.body_ok.tolist()
     for k, body in enumerate(desc):
         flag = "-" if ok is None else ("yes" if ok[k] else "**no**")
-        lines.append(f"| {body} | {desc[body]:.4g} | {est[body]:.4g} | {got[body]:.4g} | {flag} |")
+        sd = "-" if spread is None else f"{float(spread[k]):.2g}"
+        lines.append(f"| {body} | {desc[body]:.4g} | {est[body]:.4g} | {got[body]:.4g} | {sd} | "
+                     f"{'yes' if determined[body] else 'no'} | {flag} |")  # fmt: skip
+    sd = "-" if spread is None else f"{float(spread[-1]):.2g}"
     lines.append(f"| **total** | {sum(desc.values()):.4g} | {sum(est.values()):.4g} | "
-                 f"{sum(got.values()):.4g} | |")  # fmt: skip
+                 f"{sum(got.values()):.4g} | {sd} | {'yes' if determined['total'] else 'no'} "
+                 "| |")  # fmt: skip
     return lines
 
 
@@ -175,6 +193,14 @@ def write_legged(
             "masses": {
                 "description": ident.masses(model.nominal_theta),
                 "identified": ident.masses(),
+                "spread": (
+                    None
+                    if ident.mass_spread is None
+                    else dict(
+                        zip([*ident.masses(), "total"], ident.mass_spread.tolist(), strict=True)
+                    )
+                ),
+                "determined": ident.determined(),
             },  # fmt: skip
             "total_mass": ident.total_mass,
             "consistent": ident.consistent,
