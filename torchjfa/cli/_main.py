@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from importlib import import_module
 from typing import TYPE_CHECKING
@@ -104,20 +105,55 @@ def main(argv=None) -> int:
     from ..identification._errors import IdentificationError as UsageError
     from ._common import claimed_output
 
+    interrupted: list[int] = []
     try:
-        with claimed_output(args):
+        with claimed_output(args), _noting_interrupts(interrupted):
             return int(args.func(args) or 0)
     except (UsageError, LogError, OutputError, FileNotFoundError) as exc:
         if args.debug:
             raise
+        if interrupted:  # Ctrl-C inside an import or a library that turned it into an error
+            return _interrupted(args)
         print(f"torchjfa {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.debug:
             raise
-        left = f"; {args.out} is as it was" if getattr(args, "output", None) else ""
-        print(f"torchjfa {args.command}: interrupted{left}", file=sys.stderr)
-        return 130
+        return _interrupted(args)
+    except Exception:
+        if interrupted and not args.debug:
+            return _interrupted(args)
+        raise
+
+
+def _interrupted(args) -> int:
+    left = f"; {args.out} is as it was" if getattr(args, "output", None) else ""
+    print(f"torchjfa {args.command}: interrupted{left}", file=sys.stderr)
+    return 130
+
+
+@contextlib.contextmanager
+def _noting_interrupts(interrupted: list[int]):
+    """Ctrl-C raises KeyboardInterrupt as usual and is also noted in ``interrupted``: one that
+    lands inside a module's import (which Python reports as an ``ImportError``) or inside a
+    library that wraps it in its own error still ends as an interrupt, not as bad input. Only
+    in the main thread (elsewhere signal handlers cannot be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def note(signum, frame):
+        interrupted.append(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def entry() -> None:
