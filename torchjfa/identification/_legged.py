@@ -507,7 +507,9 @@ def _weighted(model, rows: RowMoments, weights, options: Options) -> Moments:
 def _prior_weight(model, blocks, weights, estimator, options: Options):
     """``(weight or None, how)`` of the description prior: given, or with ``"auto"`` chosen
     by cross-validation over the training blocks as for a fixed base
-    (`torchjfa.identification.choose_prior_weight` on the padded layout)."""
+    (`torchjfa.identification.choose_prior_weight` on the padded layout). An estimator with
+    several starts (Bayesian JFA) refits each fold from its first start alone: the refits only
+    rank the weights, and they are most of the fit's time."""
     w = options.description_prior
     if not options.project:
         return None, "none (no projection)"
@@ -518,10 +520,12 @@ def _prior_weight(model, blocks, weights, estimator, options: Options):
     padded = _Padded(model)
     folds = [padded.pad_moments(_weighted(model, b, weights, options)) for b in blocks]
     noise = getattr(estimator, "input_noise", None)
+    estimator = copy.deepcopy(estimator)
     if noise is not None:  # the given input noise, padded as the moments are
         noise = padded.pad(torch.as_tensor(noise, dtype=torch.float64))
-        estimator = copy.deepcopy(estimator)
         estimator.input_noise = noise
+    if getattr(estimator, "n_starts", 1) > 1:  # the folds' refits from the first start alone
+        estimator.n_starts = 1
     choice = choose_prior_weight(estimator, folds, padded, noise, options.parametrization, {})
     weight = pick_prior_weight(choice)
     return weight, (
