@@ -119,14 +119,20 @@ def judge(model, test, kind: str):
     return lambda theta: float((Y @ torch.as_tensor(theta) - y).pow(2).mean().sqrt())
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def command(name: str, doc: str, run_, argv=None) -> int:
+    """The command line of a legged benchmark ``name`` (its module docstring ``doc``):
+    ``--seconds``, ``--smoke`` (8 s) and ``--write-docs``, then ``run_(seconds, smoke)``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="training log, s")
     parser.add_argument("--smoke", action="store_true", help="8 s of training data, a check")
     page.add_option(parser)
     args = parser.parse_args(argv)
-    with page.recording("sim_legged", "sim_legged", args.write_docs, argv, smoke=args.smoke):
-        return run(8.0 if args.smoke else args.seconds, args.smoke)
+    with page.recording(name, name, args.write_docs, argv, smoke=args.smoke):
+        return run_(8.0 if args.smoke else args.seconds, args.smoke)
+
+
+def main(argv=None) -> int:
+    return command("sim_legged", __doc__, run, argv)
 
 
 def run(seconds: float, smoke: bool) -> int:

@@ -23,14 +23,12 @@ bodies' mass errors, and the fit's wall time.
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
 from dataclasses import replace
 
-import _benchmarks_page as page
 import numpy as np
-from sim_legged import CUTOFF_HZ, FEET, STANCE, judge
+from sim_legged import CUTOFF_HZ, FEET, STANCE, command, judge
 
 import torchjfa.robots
 from torchjfa.identification import IdentificationWarning, Options, identify_legged
@@ -44,14 +42,7 @@ FITS = (
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=60.0, help="training log, s")
-    parser.add_argument("--smoke", action="store_true", help="8 s of training data, a check")
-    page.add_option(parser)
-    args = parser.parse_args(argv)
-    with page.recording("sim_legged_estimators", "sim_legged_estimators", args.write_docs, argv,
-                        smoke=args.smoke):  # fmt: skip
-        return run(8.0 if args.smoke else args.seconds, args.smoke)
+    return command("sim_legged_estimators", __doc__, run, argv)
 
 
 def run(seconds: float, smoke: bool) -> int:
