@@ -71,4 +71,5 @@ from ._schema import LogError as LogError
 from ._sources import log_length as log_length
 from ._sources import log_sources as log_sources
 from ._spectrum import SignalNoise as SignalNoise
+from ._spectrum import floor_variance as floor_variance
 from ._spectrum import signal_noise as signal_noise

@@ -145,12 +145,21 @@ NO_FLOOR = (
 def floor_variance(
     x: np.ndarray, fs: float, segment: int, band_hz: float | None = None, threshold: float = 2.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The white-noise variance of each column of ``x`` (``(n, k)`` samples at ``fs`` Hz) from
-    its Welch spectrum's floor, as `signal_noise` reads it: ``(variance (k,), band edge (k,)
-    Hz)``.
+    """The white-noise variance of each column of a signal, from its Welch spectrum's floor,
+    read as `signal_noise` reads it (for any signal: a base pose, an IMU's readings, ...).
 
-    A column whose noise band has fewer than 4 bins (its spectrum does not flatten below the
-    Nyquist frequency) gets NaN.
+    Args:
+        x: ``(n, k)`` (or ``(n,)``) samples, uniform at ``fs``, in any unit.
+        fs: the rate, Hz.
+        segment: samples per Welch segment (at most ``n``).
+        band_hz: the lower edge of the noise band, Hz, or None to detect it per column.
+        threshold: how far above the floor the spectrum counts as signal when detecting.
+
+    Returns:
+        ``(variance, band)``: ``(k,)`` white-noise variances, the unit squared, and ``(k,)``
+        the lower edges of the bands they were read from, Hz. A column whose noise band has
+        fewer than 4 bins (its spectrum does not flatten below the Nyquist frequency) gets
+        NaN in both.
     """
     x = np.asarray(x, dtype=float).reshape(len(x), -1)
     bias = _median_bias(segment, x.shape[0])

@@ -30,9 +30,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..data import LeggedLog, LogError
+from ..data import LeggedLog, LogError, floor_variance
 from ..data._legged import continuous_quaternion
-from ..data._spectrum import NO_FLOOR, floor_variance
+from ..data._spectrum import NO_FLOOR
 from ._contacts import contact_equations
 from ._noise import cap_period_noise, noise_vector
 from ._options import IdentificationError, Options
