@@ -1,7 +1,7 @@
-"""Which masses a floating-base log determines (`mass_spread`, `LeggedIdentification.determined`):
-the total mass where the weight is measured, no single body's in a tree of revolute joints,
-checked against the regrouping that moves a point mass across a joint without changing any
-row."""
+"""Which masses a floating-base log's rows see (`mass_spread`, `LeggedIdentification.
+mass_in_span`): the total mass where the weight is measured, no single body's in a tree of
+revolute joints, checked against the regrouping that moves a point mass across a joint without
+changing any row."""
 
 from __future__ import annotations
 
@@ -61,25 +61,25 @@ def test_a_point_mass_moved_across_a_joint_changes_no_row(go2):
     assert float(delta[mass_index(model)].sum()) == 0.0  # the total mass is unchanged
 
 
-def test_with_forces_only_the_total_mass_is_determined_and_the_report_says_so(go2):
+def test_with_forces_the_rows_see_the_total_mass_and_no_single_body(go2):
     path, log = go2
     ident = identify_legged(path, log, Options(cutoff=CUTOFF))
-    determined = ident.determined()
-    assert list(determined)[-1] == "total" and determined["total"]
-    assert not any(v for k, v in determined.items() if k != "total")
-    assert ident.mass_in_span.tolist() == [False] * (len(determined) - 1) + [True]
+    n_bodies = len(ident.masses())
+    assert ident.mass_in_span.tolist() == [False] * n_bodies + [True]
     # noise-free rows: the total's jackknife spread is far under 1 % of it
     assert float(ident.mass_spread[-1]) < 0.01 * ident.total_mass
     text = legged_markdown(ident)
     total = next(line for line in text.splitlines() if line.startswith("| **total**"))
-    assert total.split("|")[-3].strip() == "yes"
-    assert "no single body's mass is determined" in text
+    cells = [c.strip() for c in total.split("|")]
+    assert cells[5] == "yes" and float(cells[6]) > 0  # seen, with its spread
+    body = next(line for line in text.splitlines() if line.startswith("| FL_calf |"))
+    assert [c.strip() for c in body.split("|")][5:7] == ["no", "-"]
+    assert "no single body's mass is seen" in text
 
 
-def test_with_contact_flags_only_nothing_is_called_determined(go2):
+def test_with_contact_flags_on_four_feet_the_rows_do_not_see_the_total_mass(go2):
     path, log = go2
     with pytest.warns(IdentificationWarning, match="weakly determined"):
         ident = identify_legged(path, replace(log, wrench={}), Options(cutoff=CUTOFF))
-    assert not any(ident.determined().values())
     # standing on four feet, the total mass is partly outside the projected rows' span
-    assert not bool(ident.mass_in_span[-1])
+    assert not any(ident.mass_in_span.tolist())

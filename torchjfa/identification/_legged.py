@@ -36,7 +36,6 @@ import warnings as _warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import ClassVar
 
 import numpy as np
 import torch
@@ -55,7 +54,7 @@ from ..physical import ConsistencyReport
 from ..stats import Moments
 from ._contacts import RowMoments, _Padded, consistent_floating, row_moments
 from ._fit import make_estimator
-from ._legged_masses import DETERMINED_SPREAD, mass_index, mass_spread
+from ._legged_masses import mass_index, mass_spread
 from ._legged_noise import legged_input_noise, propagated_legged_noise
 from ._legged_read import (
     check_legged_options,
@@ -111,7 +110,7 @@ class LeggedIdentification:
             (the base first, the total mass last; `mass_spread`: the jackknife over the
             training blocks), or None.
         mass_in_span: ``(n_bodies + 1,)`` whether each body's mass (and the total) lies in
-            the span of the training rows, or None.
+            the span of the training rows (the rows see it at all), or None.
     """
 
     model: FloatingBaseModel
@@ -131,8 +130,6 @@ class LeggedIdentification:
     seconds: float = 0.0
     mass_spread: torch.Tensor | None = None
     mass_in_span: torch.Tensor | None = None
-    #: a mass is determined where its spread is at most this fraction of it
-    determined_spread: ClassVar[float] = DETERMINED_SPREAD
 
     def masses(self, theta=None) -> dict[str, float]:
         """Body -> mass, kg (the base first), of ``theta`` (default the identified)."""
@@ -140,22 +137,6 @@ class LeggedIdentification:
         index = mass_index(self.model)
         names = (self.model.base_name, *self.model.joints.body_names)
         return {b: float(theta[i]) for b, i in zip(names, index.tolist(), strict=True)}
-
-    def determined(self) -> dict[str, bool]:
-        """Body (and ``"total"``, last) -> whether the data determine its mass: it lies in the
-        training rows' span and its spread is at most `determined_spread` of the identified
-        mass (`torchjfa.identification._legged_masses`: in a tree of revolute joints no
-        single body's mass is, the total mass can be). With contact flags only, never: the
-        weight is then inferred through the contact projection, whose bias (the filter
-        across each touchdown) the spread does not see, as simulation shows."""
-        masses = {**self.masses(), "total": self.total_mass}
-        if self.mass_spread is None or self.mass_in_span is None or self.rows == "projected":
-            return dict.fromkeys(masses, False)
-        return {
-            body: bool(ok) and float(sd) <= self.determined_spread * abs(m)
-            for (body, m), sd, ok in zip(masses.items(), self.mass_spread, self.mass_in_span,
-                                         strict=True)
-        }  # fmt: skip
 
     @property
     def total_mass(self) -> float:

@@ -1,20 +1,21 @@
-"""Which bodies' masses a floating-base log determines, and how well.
+"""Which bodies' masses a floating-base log sees at all, and their spread from the data.
 
 A standing robot's rows leave much to the description: with every foot down and contact flags
-only, the total mass is partly in the null space of the projected rows, and a leg that never
-leaves the ground shares its weight with the contact forces. For each body, `mass_spread`
-says whether its mass lies in the space the training rows span (the share of its unit
-direction outside the span, below `NULL_SHARE`) and its spread from the data alone: the delete-one-
-block jackknife of the weighted least-squares estimate over the training data's blocks (the
-description prior's cross-validation blocks, contiguous in time, so that the filter's
-correlation between neighbouring samples stays inside a block). A mass is *determined* where
-it lies in the rows' span and its spread is at most `DETERMINED_SPREAD` of its value.
+only, the total mass is partly in the null space of the projected rows, and in a tree of
+revolute joints no single body's mass is in the rows' span: a point mass on a joint's axis can
+move between the two bodies it joins without changing any torque or contact force (the
+regrouping of the base parameters). What the rows can see is the total mass (where they see
+the weight: measured contact forces, or a foot in the air); the bodies' masses lean on the
+description prior.
 
-In a tree of revolute joints no single body's mass is: a point mass at a joint's axis can be
-moved between the two bodies it joins without changing any torque or contact force (the
-regrouping of the base parameters). What the rows can determine is the total mass (where the
-weight is seen: measured contact forces, or a foot in the air), and each body's mass leans on
-the description prior.
+For each body and the total, `mass_spread` says whether the mass lies in the space the
+training rows span (the share of its unit direction outside the span below `NULL_SHARE`) and
+gives its spread from the data: the delete-one-block jackknife of the weighted least-squares
+estimate over the training data's blocks (the description prior's cross-validation blocks,
+contiguous in time, so that the filter's correlation between neighbouring samples stays inside
+a block). The spread is the estimate's variance only: the bias of noisy, filtered base
+accelerations (errors in the variables) and of the contact model is not in it, and in
+simulation it can be ten times smaller than the error.
 """
 
 from __future__ import annotations
@@ -27,12 +28,9 @@ import torch
 from ..dynamics import FloatingBaseModel
 from ._contacts import RowMoments
 
-__all__ = ["DETERMINED_SPREAD", "NULL_SHARE", "mass_index", "mass_spread"]
+__all__ = ["NULL_SHARE", "mass_index", "mass_spread"]
 
-#: a body's mass counts as determined where its spread is at most this fraction of it
-DETERMINED_SPREAD = 0.03
-#: a mass direction's share outside the rows' span above which it is not determined whatever
-#: its spread
+#: a mass direction's share outside the rows' span above which the rows do not see it
 NULL_SHARE = 1e-6
 #: the rows' null space: the eigenvalues of their weighted Gram matrix below this fraction of
 #: the largest (round-off)

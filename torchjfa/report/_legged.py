@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 from pathlib import Path
 
@@ -37,32 +38,35 @@ def _masses_table(ident) -> list[str]:
     desc = ident.masses(ident.model.nominal_theta)
     est = ident.masses(ident.theta_hat)
     got = ident.masses()
-    determined = ident.determined()
+    seen = None if ident.mass_in_span is None else ident.mass_in_span.tolist()
     spread = ident.mass_spread
     lines = [
-        "Spread: the jackknife over the training blocks of the data's own estimate; a mass is "
-        "determined where it lies in the span of the training rows and its spread is at most "
-        f"{ident.determined_spread:.0%} of it. Across a revolute joint, mass at the joint's "
-        "axis can move between the two bodies without changing any torque or force, so no "
-        "single body's mass is determined: the description prior holds them, and the data "
-        "determine the total where they see the weight (measured contact forces; with contact "
-        "flags only, the spread misses the bias of the contact projection, so nothing is "
-        "called determined).",
+        "Seen by the rows: the mass lies in the span of the training rows. Across a revolute "
+        "joint, mass on the joint's axis can move between the two bodies without changing any "
+        "torque or force, so no single body's mass is seen: the description prior holds them. "
+        "The rows see the total where they see the weight (measured contact forces, or a foot "
+        "in the air). Spread: the jackknife over the training blocks of the data's own "
+        "estimate, where the rows see the mass; it is the variance alone (the bias of noisy "
+        "base accelerations is not in it).",
         "",
-        "| body | description, kg | estimate, kg | identified, kg | spread, kg | determined "
-        "| consistent |",
-        "|---|---:|---:|---:|---:|:---:|:---:|",
+        "| body | description, kg | estimate, kg | identified, kg | seen by the rows "
+        "| spread, kg | consistent |",
+        "|---|---:|---:|---:|:---:|---:|:---:|",
     ]
     ok = None if ident.consistency is None else ident.consistency.body_ok.tolist()
+
+    def seen_cells(k: int) -> str:
+        if seen is None:
+            return "- | -"
+        sd = f"{float(spread[k]):.2g}" if seen[k] and math.isfinite(float(spread[k])) else "-"
+        return f"{'yes' if seen[k] else 'no'} | {sd}"
+
     for k, body in enumerate(desc):
         flag = "-" if ok is None else ("yes" if ok[k] else "**no**")
-        sd = "-" if spread is None else f"{float(spread[k]):.2g}"
-        lines.append(f"| {body} | {desc[body]:.4g} | {est[body]:.4g} | {got[body]:.4g} | {sd} | "
-                     f"{'yes' if determined[body] else 'no'} | {flag} |")  # fmt: skip
-    sd = "-" if spread is None else f"{float(spread[-1]):.2g}"
+        lines.append(f"| {body} | {desc[body]:.4g} | {est[body]:.4g} | {got[body]:.4g} | "
+                     f"{seen_cells(k)} | {flag} |")  # fmt: skip
     lines.append(f"| **total** | {sum(desc.values()):.4g} | {sum(est.values()):.4g} | "
-                 f"{sum(got.values()):.4g} | {sd} | {'yes' if determined['total'] else 'no'} "
-                 "| |")  # fmt: skip
+                 f"{sum(got.values()):.4g} | {seen_cells(len(desc))} | |")  # fmt: skip
     return lines
 
 
@@ -200,7 +204,13 @@ def write_legged(
                         zip([*ident.masses(), "total"], ident.mass_spread.tolist(), strict=True)
                     )
                 ),
-                "determined": ident.determined(),
+                "seen_by_the_rows": (
+                    None
+                    if ident.mass_in_span is None
+                    else dict(
+                        zip([*ident.masses(), "total"], ident.mass_in_span.tolist(), strict=True)
+                    )
+                ),
             },  # fmt: skip
             "total_mass": ident.total_mass,
             "consistent": ident.consistent,
