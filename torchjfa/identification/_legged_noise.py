@@ -1,5 +1,5 @@
 """The input noise of a floating-base robot's regression: the sensors' noise pushed through the
-flow, for the estimators that model noise in the inputs (Bayesian JFA, TLS).
+flow, for the estimators that model noise in the inputs (Bayesian JFA, JFA).
 
 A floating base's velocity and acceleration come from its pose (a state estimator, motion
 capture) or an IMU, far noisier than the joint encoders, and every row of the regression
@@ -48,6 +48,8 @@ _SIGNALS = {
     "gyro": "rad/s",
     "accelerometer": "m/s^2",
 }
+#: the IMU's signals (`torchjfa.data.LeggedLog.imu` keys) by their names in `_SIGNALS`
+_IMU_SIGNALS = {"w": "gyro", "a": "accelerometer"}
 #: Welch segment of the noise spectra, samples (fewer where the log is short)
 _SEGMENT = 256
 
@@ -100,8 +102,7 @@ def _signals(log: LeggedLog) -> dict[str, np.ndarray]:
     }
     if log.v is not None:
         out["velocity"] = log.v
-    names = {"w": "gyro", "a": "accelerometer"}
-    out.update({names[k]: x for k, x in log.imu.items()})
+    out.update({_IMU_SIGNALS[k]: x for k, x in log.imu.items()})
     return out
 
 
@@ -147,8 +148,7 @@ def _perturbed(log: LeggedLog, stds: dict[str, np.ndarray], rng) -> LeggedLog:
     q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     q[:, 7:] += noise("joint_position", q[:, 7:].shape)
     v = None if log.v is None else log.v + noise("velocity", log.v.shape)
-    names = {"w": "gyro", "a": "accelerometer"}
-    imu = {k: x + noise(names[k], x.shape) for k, x in log.imu.items()}
+    imu = {k: x + noise(_IMU_SIGNALS[k], x.shape) for k, x in log.imu.items()}
     return replace(log, q=q, v=v, imu=imu)
 
 
