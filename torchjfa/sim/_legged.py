@@ -393,7 +393,7 @@ def _stepping(lifts, t: float) -> np.ndarray | float:
         return 0.0
     k = int(t // _STEP_SLOT) % len(lifts)
     u = (t % _STEP_SLOT) / _STEP_SLOT
-    lean = min(1.0, u / 0.3) if u < 0.5 else max(0.0, 1.0 - (u - 0.7) / 0.3)
+    lean = min(1.0, u / 0.3, (1.0 - u) / 0.3)
     lift = np.sin(np.pi * (u - 0.3) / 0.4) ** 2 if 0.3 <= u <= 0.7 else 0.0
     return lean * lifts[k, 0] + lift * lifts[k, 1]
 
